@@ -1,0 +1,40 @@
+"""Impedance-control math shared by the simulator, the datasets and the tuner (pure numpy).
+
+Frames and units, defined once for the whole project:
+
+* **Bowl frame**: world axes (z up), origin at the centre of the bowl at the lowest point of its surface.
+* **Pose** ``x`` (6,): tool-tip position [m] in the bowl frame, then the tool orientation as a rotation
+  vector [rad] relative to the nominal "tool pointing straight down" orientation, in bowl-frame axes.
+* **Stiffness** ``K`` (6,): the diagonal of the Cartesian stiffness in bowl-frame axes,
+  ``[Kx, Ky, Kz]`` in N/m and ``[Krx, Kry, Krz]`` in N·m/rad. Damping is ``D = 2·sqrt(K)``.
+* **Wrench** ``F`` (6,): the contact wrench the environment exerts *on* the tool, force [N] in bowl-frame
+  axes and torque [N·m] about the tool-tip centre, tool weight removed. Pressing down gives ``F_z > 0``.
+
+The controller every embodiment executes is ``F_cmd = K (x_attr - x) - D xdot`` plus gravity and bias
+compensation, with stiffness changes low-pass filtered as a real Franka controller does.
+"""
+
+from dcm.control.impedance import (
+    StiffnessFilter,
+    StiffnessLimits,
+    StiffnessOutOfRange,
+    attractor_from_demo,
+    damping_from_stiffness,
+    filter_schedule,
+)
+from dcm.control.objectives import compliance_loss, task_loss
+from dcm.control.schedule import changepoint_phases, equal_time_phases, schedule_from_phases
+
+__all__ = [
+    "StiffnessFilter",
+    "StiffnessLimits",
+    "StiffnessOutOfRange",
+    "attractor_from_demo",
+    "changepoint_phases",
+    "compliance_loss",
+    "damping_from_stiffness",
+    "equal_time_phases",
+    "filter_schedule",
+    "schedule_from_phases",
+    "task_loss",
+]

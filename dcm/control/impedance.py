@@ -1,0 +1,111 @@
+"""Cartesian impedance law pieces: damping, attractor, stiffness limits and filtering."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+AXES = ("x", "y", "z", "rx", "ry", "rz")
+
+
+def damping_from_stiffness(stiffness: np.ndarray) -> np.ndarray:
+    """Unit-mass critical damping ``D = 2 sqrt(K)`` (elementwise on the stiffness diagonal)."""
+    return 2.0 * np.sqrt(np.asarray(stiffness, dtype=np.float64))
+
+
+def attractor_from_demo(
+    x_demo: np.ndarray,
+    force_demo: np.ndarray,
+    stiffness: np.ndarray,
+    dt: float,
+    inertia: float | np.ndarray = 0.0,
+) -> np.ndarray:
+    """Attractor that makes the impedance law reproduce the demo: x + K^-1 (D xdot + Λ xddot - F).
+
+    With the controller ``F_cmd = K (x_attr - x) - D xdot`` and the demo pose and force, this is the pose the
+    spring must pull towards so that the commanded force balances the demonstrated contact force.
+    Velocities and accelerations come from central finite differences of the demo.
+    """
+    x_demo = np.asarray(x_demo, dtype=np.float64)
+    force_demo = np.asarray(force_demo, dtype=np.float64)
+    stiffness = np.asarray(stiffness, dtype=np.float64)
+    if not (x_demo.shape == force_demo.shape == stiffness.shape) or x_demo.ndim != 2 or x_demo.shape[1] != 6:
+        raise ValueError(
+            f"attractor_from_demo needs x_demo, force_demo and stiffness of shape (H, 6); got "
+            f"{x_demo.shape}, {force_demo.shape}, {stiffness.shape}"
+        )
+    if np.any(stiffness <= 0):
+        t, axis = np.argwhere(stiffness <= 0)[0]
+        raise StiffnessOutOfRange(f"stiffness must be positive; K[{t}, {AXES[axis]}] = {stiffness[t, axis]}")
+    velocity = np.gradient(x_demo, dt, axis=0)
+    acceleration = np.gradient(velocity, dt, axis=0)
+    damping = damping_from_stiffness(stiffness)
+    return x_demo + (damping * velocity + np.asarray(inertia) * acceleration - force_demo) / stiffness
+
+
+class StiffnessOutOfRange(ValueError):
+    """A stiffness value outside the controller's limits."""
+
+
+@dataclass(frozen=True)
+class StiffnessLimits:
+    """Range a Franka-style controller accepts; beyond it the wrist torques saturate and the arm goes unstable."""
+
+    trans_min_Npm: float = 10.0
+    trans_max_Npm: float = 3000.0
+    rot_min_Nmprad: float = 1.0
+    rot_max_Nmprad: float = 300.0
+
+    def check(self, stiffness: np.ndarray, where: str = "stiffness") -> None:
+        """Raise ``StiffnessOutOfRange`` naming the first value (time index, axis) outside the limits."""
+        stiffness = np.atleast_2d(np.asarray(stiffness, dtype=np.float64))
+        if stiffness.shape[-1] != 6:
+            raise ValueError(f"{where}: expected 6 stiffness channels, got shape {stiffness.shape}")
+        low = np.array([self.trans_min_Npm] * 3 + [self.rot_min_Nmprad] * 3)
+        high = np.array([self.trans_max_Npm] * 3 + [self.rot_max_Nmprad] * 3)
+        bad = ~np.isfinite(stiffness) | (stiffness < low) | (stiffness > high)
+        if bad.any():
+            t, axis = np.argwhere(bad)[0]
+            unit = "N/m" if axis < 3 else "N·m/rad"
+            raise StiffnessOutOfRange(
+                f"{where}[t={t}, {AXES[axis]}] = {stiffness[t, axis]:g} {unit} is outside "
+                f"[{low[axis]:g}, {high[axis]:g}] {unit}"
+            )
+
+
+class StiffnessFilter:
+    """First-order low-pass on stiffness changes, optionally rate limited, as franka_ros controllers do.
+
+    Abrupt stiffness drops (say 1500 -> 200 N/m) make a pressing tool lift off and bounce; filtering them
+    with a time constant of about 0.2 s keeps the contact smooth.
+    """
+
+    def __init__(self, tau_s: float = 0.2, dt: float = 0.05, max_rate: float | None = None):
+        if tau_s < 0 or dt <= 0:
+            raise ValueError(f"StiffnessFilter needs tau_s >= 0 and dt > 0, got tau_s={tau_s}, dt={dt}")
+        self.alpha = 1.0 if tau_s == 0 else 1.0 - float(np.exp(-dt / tau_s))
+        self.max_step = None if max_rate is None else max_rate * dt
+        self.state: np.ndarray | None = None
+
+    def reset(self, stiffness: np.ndarray) -> None:
+        self.state = np.array(stiffness, dtype=np.float64)
+
+    def step(self, stiffness_cmd: np.ndarray) -> np.ndarray:
+        """Advance one control period towards the commanded stiffness; returns the stiffness to apply."""
+        if self.state is None:
+            self.reset(stiffness_cmd)
+            return self.state.copy()
+        change = self.alpha * (np.asarray(stiffness_cmd, dtype=np.float64) - self.state)
+        if self.max_step is not None:
+            change = np.clip(change, -self.max_step, self.max_step)
+        self.state = self.state + change
+        return self.state.copy()
+
+
+def filter_schedule(
+    stiffness: np.ndarray, dt: float, tau_s: float = 0.2, max_rate: float | None = None
+) -> np.ndarray:
+    """The stiffness the controller actually applies at each step of a commanded schedule (H, 6)."""
+    flt = StiffnessFilter(tau_s=tau_s, dt=dt, max_rate=max_rate)
+    return np.stack([flt.step(k) for k in np.asarray(stiffness, dtype=np.float64)])
