@@ -1,0 +1,140 @@
+"""Physics and sensing domains: the nominal simulator and a shifted "realistic" stand-in.
+
+The realistic domain is NOT real-robot data. It perturbs the same simulated task the way a physical setup
+differs from its model (stickier/softer surface, joint friction and damping, a heavier tool than the
+controller assumes, a biased, noisy and low-passed F/T sensor, a control latency) so that sim-to-real
+transfer can be studied without a robot.
+
+Who applies what: the embodiment applies the physical parts when it builds its MuJoCo model
+(``friction_scale``, ``solref_timeconst_scale``, ``joint_frictionloss``, ``joint_damping``,
+``tool_mass_scale``); the ``Simulator`` applies sensing (``ft_bias``, ``ft_noise_std``, ``ft_lowpass_hz``)
+and ``latency_steps``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+
+class DomainSpecError(ValueError):
+    """An invalid domain description (names the field and value)."""
+
+
+def _vec6(value: Any, name: str) -> tuple[float, ...]:
+    arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (6,))
+    if not np.all(np.isfinite(arr)):
+        raise DomainSpecError(f"domain.{name} = {value!r} must be finite")
+    return tuple(float(v) for v in arr)
+
+
+@dataclass
+class DomainSpec:
+    """Perturbations relative to the nominal model.
+
+    Units: ``joint_frictionloss`` in N (slide joints) or N·m (revolute joints); ``joint_damping`` in
+    N·s/m or N·m·s/rad; ``ft_bias`` and ``ft_noise_std`` per wrench channel [N, N, N, N·m, N·m, N·m];
+    ``ft_lowpass_hz`` is the cut-off of a first-order filter applied at the control rate (0 = off);
+    ``latency_steps`` delays attractor and stiffness commands by whole control periods.
+    """
+
+    name: str = "nominal"
+    friction_scale: float = 1.0
+    solref_timeconst_scale: float = 1.0
+    joint_frictionloss: float = 0.0
+    joint_damping: float = 0.0
+    tool_mass_scale: float = 1.0
+    ft_bias: tuple[float, ...] = (0.0,) * 6
+    ft_noise_std: tuple[float, ...] = (0.0,) * 6
+    ft_lowpass_hz: float = 0.0
+    latency_steps: int = 0
+
+    def __post_init__(self) -> None:
+        self.ft_bias = _vec6(self.ft_bias, "ft_bias")
+        self.ft_noise_std = _vec6(self.ft_noise_std, "ft_noise_std")
+        self.validate()
+
+    def validate(self) -> None:
+        checks = {
+            "friction_scale": (self.friction_scale, 0.0, 5.0),
+            "solref_timeconst_scale": (self.solref_timeconst_scale, 0.2, 5.0),
+            "joint_frictionloss": (self.joint_frictionloss, 0.0, 50.0),
+            "joint_damping": (self.joint_damping, 0.0, 200.0),
+            "tool_mass_scale": (self.tool_mass_scale, 0.1, 10.0),
+            "ft_lowpass_hz": (self.ft_lowpass_hz, 0.0, 1e4),
+            "latency_steps": (self.latency_steps, 0, 20),
+        }
+        for key, (value, low, high) in checks.items():
+            if not np.isfinite(value) or not (low <= value <= high):
+                raise DomainSpecError(f"domain.{key} = {value!r} is outside [{low}, {high}]")
+        if int(self.latency_steps) != self.latency_steps:
+            raise DomainSpecError(f"domain.latency_steps = {self.latency_steps!r} must be an integer")
+        if min(self.ft_noise_std) < 0:
+            raise DomainSpecError(f"domain.ft_noise_std = {self.ft_noise_std} must be >= 0")
+
+    @property
+    def has_sensing_effects(self) -> bool:
+        return any(self.ft_bias) or any(self.ft_noise_std) or self.ft_lowpass_hz > 0
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["ft_bias"] = list(self.ft_bias)
+        out["ft_noise_std"] = list(self.ft_noise_std)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "domain") -> "DomainSpec":
+        known = {f.name for f in fields(cls)}
+        extra = set(data) - known
+        if extra:
+            raise DomainSpecError(f"{where}: unknown domain field(s) {sorted(extra)}; known: {sorted(known)}")
+        return cls(**data)
+
+    @classmethod
+    def load(cls, path: str) -> "DomainSpec":
+        """Read a domain preset (YAML or JSON), e.g. ``conf/domain/realistic.yaml``."""
+        import yaml
+
+        with open(path) as fh:
+            data = yaml.safe_load(fh)
+        if not isinstance(data, dict):
+            raise DomainSpecError(f"{path}: expected a mapping of domain fields, got {type(data).__name__}")
+        return cls.from_dict(data, where=str(path))
+
+    @classmethod
+    def preset(cls, name: str) -> "DomainSpec":
+        """``"nominal"`` or ``"realistic"``."""
+        if name not in PRESETS:
+            raise DomainSpecError(f"unknown domain preset {name!r}; known: {sorted(PRESETS)}")
+        return cls.from_dict(PRESETS[name])
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "nominal": {"name": "nominal"},
+    # A stand-in for a physical setup (not real data): values chosen to be plausible for a Franka with a
+    # wiping sponge: ~30% more friction, a softer surface, a few N of joint friction, a tool 20% heavier
+    # than the controller's model, a few N of F/T bias, ~0.3 N noise, a 10 Hz sensor filter and one control
+    # period (50 ms) of command latency.
+    "realistic": {
+        "name": "realistic",
+        "friction_scale": 1.3,
+        "solref_timeconst_scale": 1.5,
+        "joint_frictionloss": 0.5,
+        "joint_damping": 2.0,
+        "tool_mass_scale": 1.2,
+        "ft_bias": [0.8, -0.5, 1.5, 0.02, -0.01, 0.0],
+        "ft_noise_std": [0.3, 0.3, 0.4, 0.005, 0.005, 0.003],
+        "ft_lowpass_hz": 10.0,
+        "latency_steps": 1,
+    },
+}
+
+
+def nominal() -> DomainSpec:
+    return DomainSpec.preset("nominal")
+
+
+def realistic() -> DomainSpec:
+    return DomainSpec.preset("realistic")
