@@ -1,0 +1,288 @@
+"""DDPM machinery for the contact model: noise schedules, diffusers schedulers, training noise, sampling.
+
+Conventions
+- Timesteps are 0-based, t in {0..T-1} (diffusers' indexing; the paper's step i = t + 1). The score net
+  receives exactly these integers as `step`.
+- epsilon-prediction: the net predicts the noise that `add_noise` injected.
+- Every schedule is rescaled with T so the forward process ends near pure noise (alpha_bar_T <= ~1e-3)
+  for every T in 1..100. The textbook linear endpoints (1e-4, 0.02) were tuned for T=1000: at T=30 they
+  leave alpha_bar_T ~ 0.74, so the sampler would start from a distribution the net never saw.
+- Schedulers are diffusers' DDPMScheduler / DDIMScheduler fed with our own `trained_betas`, with every
+  default that changes results set explicitly in `make_scheduler`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+from diffusers import DDIMScheduler, DDPMScheduler
+from diffusers.utils.torch_utils import randn_tensor
+
+__all__ = [
+    "SCHEDULES",
+    "MAX_BETA",
+    "ScheduleError",
+    "NoiseSchedule",
+    "make_betas",
+    "alphas_cumprod",
+    "make_scheduler",
+    "add_noise",
+    "sample_timesteps",
+    "diffusion_loss",
+    "sample",
+    "sample_many",
+]
+
+SCHEDULES = ("linear", "cosine", "sigmoid", "scaled_linear")
+_SCHEDULE_ALIASES = {"squaredcos_cap_v2": "cosine", "squared_cosine": "cosine", "squaredcos": "cosine"}
+MAX_BETA = 0.999  # the cap diffusers and Nichol & Dhariwal use; keeps 1/sqrt(alpha_t) finite
+MAX_T = 100
+
+ScoreNet = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+Scheduler = DDPMScheduler | DDIMScheduler
+
+
+class ScheduleError(ValueError):
+    """Bad schedule name, number of steps or sampler settings."""
+
+
+def _canonical(schedule: str) -> str:
+    name = _SCHEDULE_ALIASES.get(schedule.lower(), schedule.lower())
+    if name not in SCHEDULES:
+        raise ScheduleError(f"unknown noise schedule {schedule!r}; choose one of {SCHEDULES}")
+    return name
+
+
+def _check_T(T: int) -> int:
+    if isinstance(T, bool) or int(T) != T or not 1 <= int(T) <= MAX_T:
+        raise ScheduleError(f"number of diffusion steps T must be an integer in 1..{MAX_T}, got {T!r}")
+    return int(T)
+
+
+def _betas_from_alpha_bar(alpha_bar: Callable[[np.ndarray], np.ndarray], T: int) -> np.ndarray:
+    """Discretise a continuous alpha_bar(s), s in [0,1], into T betas (capped at MAX_BETA)."""
+    s = np.arange(T + 1, dtype=np.float64) / T
+    ab = alpha_bar(s)
+    betas = 1.0 - ab[1:] / ab[:-1]
+    return np.clip(betas, 0.0, MAX_BETA)
+
+
+def make_betas(
+    schedule: str,
+    T: int,
+    *,
+    beta_start: float = 1e-4,
+    beta_end: float = 0.02,
+    reference_steps: int = 1000,
+) -> torch.Tensor:
+    """Noise variances beta_1..beta_T (float64, shape (T,)) for `schedule` at `T` steps.
+
+    - linear (the paper's, Ho et al. 2020): endpoints beta_start..beta_end defined for `reference_steps`
+      steps and multiplied by reference_steps / T (the rescaling of Nichol & Dhariwal 2021), which keeps
+      sum(beta) ~ 10 and so alpha_bar_T ~ e^-10 for any T; capped at MAX_BETA (T=1 -> beta = 0.999).
+    - scaled_linear: linear in sqrt(beta) between the same endpoints, same rescaling (gentler start).
+    - cosine: squared-cosine alpha_bar (Nichol & Dhariwal 2021); T-independent by construction.
+    - sigmoid: alpha_bar follows a shifted sigmoid over [-3, 3] (Chen 2023, "On the importance of noise
+      scheduling"); spends more steps at mid noise levels than cosine.
+    """
+    name, T = _canonical(schedule), _check_T(T)
+    if name in ("linear", "scaled_linear"):
+        if not 0.0 < beta_start < beta_end < 1.0:
+            raise ScheduleError(f"need 0 < beta_start < beta_end < 1, got {beta_start=}, {beta_end=}")
+        scale = reference_steps / T
+        if T == 1:
+            betas = np.array([beta_end * scale])
+        elif name == "linear":
+            betas = scale * np.linspace(beta_start, beta_end, T)
+        else:
+            betas = scale * np.linspace(math.sqrt(beta_start), math.sqrt(beta_end), T) ** 2
+        betas = np.clip(betas, 0.0, MAX_BETA)
+    elif name == "cosine":
+        s_off = 0.008
+        betas = _betas_from_alpha_bar(lambda s: np.cos((s + s_off) / (1 + s_off) * math.pi / 2) ** 2, T)
+    else:  # sigmoid
+        lo, hi, tau = -3.0, 3.0, 1.0
+        sig = lambda z: 1.0 / (1.0 + np.exp(-z))  # noqa: E731
+        v_lo, v_hi = sig(lo / tau), sig(hi / tau)
+        betas = _betas_from_alpha_bar(lambda s: (v_hi - sig((s * (hi - lo) + lo) / tau)) / (v_hi - v_lo), T)
+    return torch.as_tensor(betas, dtype=torch.float64)
+
+
+def alphas_cumprod(betas: torch.Tensor) -> torch.Tensor:
+    """alpha_bar_t = prod_{s<=t} (1 - beta_s); alpha_bar[-1] is how much signal survives at t = T."""
+    return torch.cumprod(1.0 - betas, dim=0)
+
+
+@dataclass(frozen=True)
+class NoiseSchedule:
+    """A named schedule plus the sampler settings that go with it; the `_target_` of conf/schedule/*.yaml.
+
+    `clip_sample_range=None` disables clipping of the x0 estimate (diffusers clips to [-1, 1] by
+    default, which would silently saturate forces outside the training min/max). A value r > 0 clips
+    to [-r, r] in normalised units: a guard against the 1/sqrt(alpha_bar_T) blow-up at the first step.
+    `variance_type`: "fixed_small" = posterior variance beta~_t (Ho et al.'s better-NLL choice and
+    diffusers' default); "fixed_large" = beta_t, the paper's Eq. for p(F^(i-1) | F^(i)).
+    """
+
+    name: str = "linear"
+    beta_start: float = 1e-4
+    beta_end: float = 0.02
+    reference_steps: int = 1000
+    clip_sample_range: float | None = None
+    variance_type: Literal["fixed_small", "fixed_large"] = "fixed_small"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", _canonical(self.name))
+        if self.clip_sample_range is not None and self.clip_sample_range <= 0:
+            raise ScheduleError(f"clip_sample_range must be > 0 or None, got {self.clip_sample_range}")
+        if self.variance_type not in ("fixed_small", "fixed_large"):
+            raise ScheduleError(f"variance_type must be 'fixed_small' or 'fixed_large', got {self.variance_type!r}")
+
+    def betas(self, T: int) -> torch.Tensor:
+        return make_betas(
+            self.name, T, beta_start=self.beta_start, beta_end=self.beta_end, reference_steps=self.reference_steps
+        )
+
+    def scheduler(self, kind: Literal["ddpm", "ddim"], T: int) -> Scheduler:
+        return make_scheduler(kind, self, T)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _as_schedule(schedule: str | NoiseSchedule | dict) -> NoiseSchedule:
+    if isinstance(schedule, NoiseSchedule):
+        return schedule
+    if isinstance(schedule, str):
+        return NoiseSchedule(name=schedule)
+    if isinstance(schedule, dict) or hasattr(schedule, "items"):  # plain dict or an OmegaConf DictConfig
+        return NoiseSchedule(**{k: v for k, v in dict(schedule).items() if k != "_target_"})
+    raise ScheduleError(f"schedule must be a name, NoiseSchedule or dict, got {type(schedule).__name__}")
+
+
+def make_scheduler(
+    kind: Literal["ddpm", "ddim"], schedule: str | NoiseSchedule | dict = "linear", T: int = 30
+) -> Scheduler:
+    """A diffusers scheduler over our betas, with every default that matters pinned.
+
+    - `trained_betas` carries the T-rescaled betas (`beta_schedule` is then ignored by diffusers).
+    - `prediction_type="epsilon"`, `thresholding=False`, clipping per `NoiseSchedule.clip_sample_range`.
+    - `timestep_spacing="trailing"` + `steps_offset=0`: a shortened chain starts at t = T-1 (pure noise)
+      and ends at t = -1; "leading" would start part-way down the chain.
+    - DDIM: `set_alpha_to_one=True` so its last step returns the x0 estimate;
+      `rescale_betas_zero_snr=False` (our alpha_bar_T is already ~0, and exact zero breaks epsilon-prediction).
+    """
+    sched, T = _as_schedule(schedule), _check_T(T)
+    betas = sched.betas(T).numpy()
+    clip = sched.clip_sample_range is not None
+    common = dict(
+        num_train_timesteps=T,
+        trained_betas=betas,
+        beta_schedule="linear",
+        prediction_type="epsilon",
+        clip_sample=clip,
+        clip_sample_range=float(sched.clip_sample_range) if clip else 1.0,
+        thresholding=False,
+        timestep_spacing="trailing",
+        steps_offset=0,
+    )
+    kind_l = kind.lower()
+    if kind_l == "ddpm":
+        return DDPMScheduler(variance_type=sched.variance_type, **common)
+    if kind_l == "ddim":
+        return DDIMScheduler(set_alpha_to_one=True, rescale_betas_zero_snr=False, **common)
+    raise ScheduleError(f"unknown sampler kind {kind!r}; choose 'ddpm' or 'ddim'")
+
+
+def add_noise(scheduler: Scheduler, x0: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
+    """Forward process q(x_t | x0) = sqrt(ab_t) x0 + sqrt(1 - ab_t) noise, for x0 of shape (B, ...)."""
+    ab = scheduler.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[timesteps.to(x0.device).long()]
+    ab = ab.reshape(-1, *([1] * (x0.dim() - 1)))
+    return ab.sqrt() * x0 + (1.0 - ab).sqrt() * noise
+
+
+def sample_timesteps(scheduler: Scheduler, batch: int, device: torch.device | str, generator=None) -> torch.Tensor:
+    """Uniform training timesteps in 0..T-1, shape (batch,), long."""
+    T = scheduler.config.num_train_timesteps
+    gen_device = device if generator is None else generator.device
+    return torch.randint(0, T, (batch,), generator=generator, device=gen_device).to(device)
+
+
+def diffusion_loss(
+    net: ScoreNet, cond: torch.Tensor, x0: torch.Tensor, scheduler: Scheduler, generator=None, reduction: str = "mean"
+) -> torch.Tensor:
+    """The epsilon-matching objective: MSE between injected and predicted noise at a uniform random t."""
+    t = sample_timesteps(scheduler, x0.shape[0], x0.device, generator)
+    noise = randn_tensor(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
+    eps = net(cond, add_noise(scheduler, x0, noise, t), t)
+    return torch.nn.functional.mse_loss(eps, noise, reduction=reduction)
+
+
+def _inference_steps(scheduler: Scheduler, num_inference_steps: int | None) -> int:
+    T = scheduler.config.num_train_timesteps
+    n = T if num_inference_steps is None else int(num_inference_steps)
+    if not 1 <= n <= T:
+        raise ScheduleError(f"num_inference_steps must be in 1..T={T}, got {num_inference_steps}")
+    if isinstance(scheduler, DDIMScheduler) and T % n:
+        # diffusers' DDIM jumps by T // n between steps; with a remainder the chain's noise levels drift
+        # away from the timesteps given to the net, so only exact divisors are allowed.
+        divisors = [d for d in range(1, T + 1) if T % d == 0]
+        raise ScheduleError(f"DDIM needs num_inference_steps dividing T={T}; got {n}, choose one of {divisors}")
+    return n
+
+
+@torch.no_grad()
+def sample(
+    net: ScoreNet,
+    cond: torch.Tensor,
+    shape: tuple[int, ...] | torch.Size,
+    scheduler: Scheduler,
+    num_inference_steps: int | None = None,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Draw x0 ~ p_theta(x0 | cond) by reverse diffusion; returns a tensor of `shape` (B, H, out_dim).
+
+    DDPM: ancestral sampling over all T steps (default) or a trailing subset. DDIM (eta = 0,
+    deterministic given the start noise): fewer steps, `num_inference_steps` must divide T.
+    Runs on `cond`'s device and dtype; put the net in eval mode yourself.
+    """
+    n = _inference_steps(scheduler, num_inference_steps)
+    scheduler.set_timesteps(n)  # timesteps stay on the CPU: diffusers indexes its CPU tables with them
+    x = randn_tensor(tuple(shape), generator=generator, device=cond.device, dtype=cond.dtype)
+    batch = torch.ones(shape[0], dtype=torch.long, device=cond.device)
+    for t in scheduler.timesteps:
+        eps = net(cond, x, batch * t)
+        x = scheduler.step(eps, t, x, generator=generator).prev_sample
+    return x
+
+
+@torch.no_grad()
+def sample_many(
+    net: ScoreNet,
+    cond: torch.Tensor,
+    out_dim: int,
+    scheduler: Scheduler,
+    k: int,
+    num_inference_steps: int | None = None,
+    generator: torch.Generator | None = None,
+    max_batch: int | None = None,
+) -> torch.Tensor:
+    """k independent samples per condition, batched: returns (k, B, H, out_dim).
+
+    The k copies run as one batch of k*B (chunked by `max_batch` rows to bound memory), so averaging
+    over samples costs one sampling pass. Mean over dim 0 is the prediction, std its uncertainty.
+    """
+    if k < 1:
+        raise ScheduleError(f"k must be >= 1, got {k}")
+    B, H = cond.shape[:2]
+    big = cond.repeat(k, 1, 1)  # sample j of item b sits at row j*B + b
+    chunk = big.shape[0] if max_batch is None else max(1, int(max_batch))
+    outs = [
+        sample(net, c, (c.shape[0], H, out_dim), scheduler, num_inference_steps, generator) for c in big.split(chunk)
+    ]
+    return torch.cat(outs).reshape(k, B, H, out_dim)
