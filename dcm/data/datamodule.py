@@ -1,0 +1,202 @@
+"""Lightning DataModule over a dcm HDF5 dataset, held entirely in memory (datasets are a few MB).
+
+Batches are dicts of raw, un-normalised float32 tensors in physical units:
+
+* ``cond``   (B, H, 24): per-step conditions ``x_demo(6) | F_demo(6) | x_attr(6) | K(6)`` —
+  pose [m, rad] in the bowl frame, wrench [N, N·m], attractor pose [m, rad], stiffness diagonal [N/m, N·m/rad]
+  (channel names: :func:`dcm.models.configuration.cond_channel_names`);
+* ``target`` (B, H, 6): the observed contact wrench ``F_obs`` [N, N·m].
+
+Normalisation to [-1, 1] lives in the model (its statistics come from :meth:`DCMDataModule.train_stats`),
+so that checkpoints carry it and fine-tuning keeps the pre-training statistics.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from dcm.data.schema import CHANNELS, LoadedDataset, load_dataset
+from dcm.models.configuration import COND_FIELDS, TARGET_FIELD, cond_channel_names, target_channel_names
+
+STAGES = ("pretrain", "finetune")
+
+
+class DataModuleError(ValueError):
+    """A DataModule argument is unusable (usage rate, stage, split ...)."""
+
+
+def stack_conditions(arrays: dict[str, np.ndarray]) -> np.ndarray:
+    """Concatenate the condition fields of (N,H,6) arrays into (N,H,24) in the documented order."""
+    return np.concatenate([np.asarray(arrays[f], dtype=np.float32) for f in COND_FIELDS], axis=-1)
+
+
+def dataset_channels(dataset: LoadedDataset) -> tuple[list[str], list[str]]:
+    """The condition/target channel names a dataset file declares (from its ``channels`` attribute)."""
+    declared = dataset.attrs.get("channels") or CHANNELS
+    if not isinstance(declared, dict):
+        raise DataModuleError(f"{dataset.path}: root attribute 'channels' is not a mapping: {declared!r}")
+    cond = [f"{f}.{c}" for f in COND_FIELDS for c in declared.get(f, [])]
+    target = [f"{TARGET_FIELD}.{c}" for c in declared.get(TARGET_FIELD, [])]
+    return cond, target
+
+
+class TrajectoryDataset(Dataset):
+    """(cond, target) pairs of whole trajectories, already stacked as tensors."""
+
+    def __init__(self, cond: np.ndarray, target: np.ndarray, names: list[str], L_task: np.ndarray) -> None:
+        self.cond = torch.as_tensor(cond, dtype=torch.float32)
+        self.target = torch.as_tensor(target, dtype=torch.float32)
+        self.names = list(names)
+        self.L_task = np.asarray(L_task, dtype=np.float64)
+
+    @classmethod
+    def from_loaded(cls, dataset: LoadedDataset, index: np.ndarray | None = None) -> "TrajectoryDataset":
+        cond = stack_conditions(dataset.arrays)
+        target = np.asarray(dataset.arrays[TARGET_FIELD], dtype=np.float32)
+        names, L_task = dataset.names, dataset.L_task
+        if index is not None:
+            cond, target, L_task = cond[index], target[index], L_task[index]
+            names = [names[i] for i in index]
+        return cls(cond, target, names, L_task)
+
+    def __len__(self) -> int:
+        return self.cond.shape[0]
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        return {"cond": self.cond[i], "target": self.target[i]}
+
+    def subset(self, n: int | None) -> "TrajectoryDataset":
+        """The first ``n`` trajectories (all when ``n`` is None or larger): a fixed evaluation set."""
+        if n is None or n >= len(self):
+            return self
+        return TrajectoryDataset(self.cond[:n].numpy(), self.target[:n].numpy(), self.names[:n], self.L_task[:n])
+
+
+class DCMDataModule(L.LightningDataModule):
+    """Train/valid/test splits of one dataset file, taken from its masks.
+
+    Args:
+        path: the HDF5 file.
+        stage: ``pretrain`` (simulated data) or ``finetune`` (realistic data or imported real logs); recorded
+            for the run and checked by ``train.py``.
+        usage_rate: seeded fraction 0 < r <= 1 of the training trajectories to use (at least one).
+        seed: seed of the usage-rate subset.
+        expect_control_hz: refuse a dataset recorded at another control rate (None accepts any).
+        n_eval: trajectories of the valid/test split the metrics callback samples (None = all).
+    """
+
+    def __init__(self, path: str | Path, stage: str = "pretrain", usage_rate: float = 1.0, seed: int = 0,
+                 batch_size: int = 64, eval_batch_size: int = 256, num_workers: int = 0,
+                 expect_control_hz: float | None = None, n_eval: int | None = 64) -> None:
+        super().__init__()
+        if stage not in STAGES:
+            raise DataModuleError(f"stage must be one of {STAGES}, got {stage!r}")
+        usage_rate = float(usage_rate)
+        if not 0.0 < usage_rate <= 1.0:
+            raise DataModuleError(f"usage_rate must satisfy 0 < r <= 1, got {usage_rate}")
+        if int(batch_size) < 1:
+            raise DataModuleError(f"batch_size must be >= 1, got {batch_size}")
+        if n_eval is not None and int(n_eval) < 1:
+            raise DataModuleError(f"n_eval must be >= 1 or None, got {n_eval}")
+        self.path = Path(path)
+        self.stage = stage
+        self.usage_rate = usage_rate
+        self.seed = int(seed)
+        self.batch_size = int(batch_size)
+        self.eval_batch_size = int(eval_batch_size)
+        self.num_workers = int(num_workers)
+        self.expect_control_hz = expect_control_hz
+        self.n_eval = None if n_eval is None else int(n_eval)
+        self.save_hyperparameters()
+        self.splits: dict[str, TrajectoryDataset] = {}
+        self.attrs: dict[str, Any] = {}
+        self.cond_channels: list[str] = []
+        self.target_channels: list[str] = []
+        self.n_train_total = 0
+
+    # ------------------------------------------------------------------ loading
+    def _load(self, split: str) -> LoadedDataset:
+        dataset = load_dataset(self.path, split=split, expect_control_hz=self.expect_control_hz)
+        self.attrs = dataset.attrs
+        self.cond_channels, self.target_channels = dataset_channels(dataset)
+        if self.cond_channels != cond_channel_names() or self.target_channels != target_channel_names():
+            from dcm.models.configuration import DatasetMismatchError
+
+            raise DatasetMismatchError(
+                f"{self.path}: channels {self.cond_channels} -> {self.target_channels} differ from the "
+                f"{cond_channel_names()} -> {target_channel_names()} the models use")
+        return dataset
+
+    def usage_index(self, n_total: int) -> np.ndarray:
+        """Sorted indices of the seeded usage-rate subset of ``n_total`` training trajectories."""
+        n_use = max(1, int(round(self.usage_rate * n_total)))
+        rng = np.random.default_rng(self.seed)
+        return np.sort(rng.choice(n_total, size=n_use, replace=False))
+
+    def setup(self, stage: str | None = None) -> None:
+        """Load the splits a Lightning stage needs (fit: train+valid; validate: valid; test: test)."""
+        wanted = {"fit": ("train", "valid"), "validate": ("valid",), "test": ("test",),
+                  "predict": ("test",), None: ("train", "valid")}.get(stage, ("train", "valid"))
+        for split in wanted:
+            if split in self.splits:
+                continue
+            loaded = self._load(split)
+            if split == "train":
+                self.n_train_total = len(loaded)
+                self.splits[split] = TrajectoryDataset.from_loaded(loaded, self.usage_index(len(loaded)))
+            else:
+                self.splits[split] = TrajectoryDataset.from_loaded(loaded)
+
+    def split(self, name: str) -> TrajectoryDataset:
+        if name not in self.splits:
+            self.setup({"train": "fit", "valid": "validate", "test": "test"}.get(name, "fit"))
+        if name not in self.splits:
+            raise DataModuleError(f"{self.path}: split {name!r} is not available")
+        return self.splits[name]
+
+    @property
+    def control_hz(self) -> float:
+        if not self.attrs:
+            self.split("train")
+        return float(self.attrs["control_hz"])
+
+    def train_stats(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per-channel (cond_min, cond_max, target_min, target_max) over the used training trajectories."""
+        train = self.split("train")
+        cond = train.cond.reshape(-1, train.cond.shape[-1])
+        target = train.target.reshape(-1, train.target.shape[-1])
+        return (cond.min(0).values.numpy(), cond.max(0).values.numpy(),
+                target.min(0).values.numpy(), target.max(0).values.numpy())
+
+    def eval_set(self, split: str = "valid") -> TrajectoryDataset:
+        """The fixed subset of a split that the metrics callback samples forces for."""
+        return self.split(split).subset(self.n_eval)
+
+    # ------------------------------------------------------------------ loaders
+    def _loader(self, dataset: TrajectoryDataset, shuffle: bool, batch_size: int) -> DataLoader:
+        generator = torch.Generator().manual_seed(self.seed) if shuffle else None
+        return DataLoader(dataset, batch_size=batch_size, shuffle=shuffle, num_workers=self.num_workers,
+                          generator=generator, drop_last=False, persistent_workers=self.num_workers > 0)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self.split("train"), True, self.batch_size)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self.split("valid"), False, self.eval_batch_size)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader(self.split("test"), False, self.eval_batch_size)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"path": str(self.path), "stage": self.stage, "usage_rate": self.usage_rate, "seed": self.seed,
+                "n_train_used": len(self.splits["train"]) if "train" in self.splits else None,
+                "n_train_total": self.n_train_total}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Nothing to restore: the subset is a pure function of (file, usage_rate, seed)."""

@@ -1,0 +1,154 @@
+"""Task metrics of a force model: sample forces for an evaluation set and score them the paper's way.
+
+* ``L_MSE``: mean squared error of the predicted (k-sample mean) and true wrench, normalised units [-1, 1].
+* ``R``: Pearson correlation over trajectories between predicted and true L_task (force RMSE to F_demo,
+  :func:`dcm.control.objectives.task_loss`, in N) — what the stiffness optimiser ranks candidates by.
+* ``rmse_<axis>``: per-axis RMSE of the wrench [N for forces, N·m for torques].
+
+:class:`ForceMetricsCallback` logs them after validation/test epochs (checkpoints select on ``val/R``),
+plus TensorBoard figures of predicted vs true force curves; :func:`evaluate_model` is the same computation
+for ``python -m dcm.evaluate``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+import torchmetrics
+from lightning.pytorch.callbacks import Callback
+
+from dcm.control.objectives import task_loss
+from dcm.data.datamodule import TrajectoryDataset
+from dcm.data.schema import CHANNELS
+
+AXES: tuple[str, ...] = tuple(c.split("_")[0] for c in CHANNELS["F_obs"])  # Fx, Fy, Fz, Tx, Ty, Tz
+
+
+@torch.no_grad()
+def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None = None, seed: int = 0,
+                   ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Sample forces for every trajectory of ``dataset`` and compute the metrics.
+
+    Returns ``(metrics, arrays)``; arrays holds ``pred_N``, ``std_N``, ``true_N``, ``F_demo_N`` (N,H,6)
+    and ``L_task_pred``/``L_task_true`` (N,). Sampling uses a generator seeded with ``seed``.
+    """
+    device = model.device
+    generator = torch.Generator(device=device).manual_seed(int(seed))
+    cond = dataset.cond.to(device)
+    true = dataset.target.to(device)
+    cond_n = model.cond_norm.normalize(cond)
+    mean_n, std_n = model.predict_normalized(cond_n, n_samples, generator)
+    pred = model.target_norm.unnormalize(mean_n)
+    true_n = model.target_norm.normalize(true)
+    F_demo = cond[..., 6:12]
+
+    mse = torchmetrics.MeanSquaredError().to(device)
+    mse.update(mean_n.reshape(-1), true_n.reshape(-1))
+    rmse_axis = torchmetrics.MeanSquaredError(squared=False, num_outputs=6).to(device)
+    rmse_axis.update(pred.reshape(-1, 6), true.reshape(-1, 6))
+    L_pred = task_loss(pred, F_demo).double()
+    L_true = task_loss(true, F_demo).double()
+    if L_pred.numel() >= 2 and float(L_pred.std()) > 0 and float(L_true.std()) > 0:
+        pearson = torchmetrics.PearsonCorrCoef().to(device, dtype=torch.float64)
+        pearson.update(L_pred, L_true)
+        R = float(pearson.compute())
+    else:  # a constant prediction (or a single trajectory) has no defined correlation
+        R = float("nan")
+
+    metrics: dict[str, float] = {"L_MSE": float(mse.compute()), "R": R}
+    for axis, value in zip(AXES, rmse_axis.compute().tolist()):
+        metrics[f"rmse_{axis}"] = float(value)
+    metrics["rmse_force_N"] = float(((pred[..., :3] - true[..., :3]) ** 2).mean().sqrt())
+    metrics["L_task_abs_err_N"] = float((L_pred - L_true).abs().mean())
+    metrics["mean_std_N"] = float(model.target_norm.unnormalize_std(std_n)[..., :3].mean())
+    arrays = {
+        "pred_N": pred.cpu().numpy(), "std_N": model.target_norm.unnormalize_std(std_n).cpu().numpy(),
+        "true_N": true.cpu().numpy(), "F_demo_N": F_demo.cpu().numpy(),
+        "L_task_pred": L_pred.cpu().numpy(), "L_task_true": L_true.cpu().numpy(),
+    }
+    return metrics, arrays
+
+
+def force_figure(arrays: dict[str, np.ndarray], names: list[str], n_plot: int = 3, dt: float | None = None):
+    """Predicted (±std) vs true Fx/Fy/Fz curves for the first ``n_plot`` trajectories, with F_demo dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    n = min(n_plot, arrays["pred_N"].shape[0])
+    fig, axes = plt.subplots(n, 3, figsize=(11, 2.3 * n), squeeze=False, sharex=True)
+    H = arrays["pred_N"].shape[1]
+    t = np.arange(H) * (dt or 1.0)
+    for i in range(n):
+        for j, axis in enumerate(AXES[:3]):
+            ax = axes[i][j]
+            mean, std = arrays["pred_N"][i, :, j], arrays["std_N"][i, :, j]
+            ax.plot(t, arrays["true_N"][i, :, j], color="k", lw=1.2, label="F_obs (true)")
+            ax.plot(t, mean, color="tab:red", lw=1.2, label="predicted")
+            ax.fill_between(t, mean - std, mean + std, color="tab:red", alpha=0.25, lw=0)
+            ax.plot(t, arrays["F_demo_N"][i, :, j], color="tab:blue", lw=0.8, ls="--", label="F_demo")
+            if i == 0:
+                ax.set_title(f"{axis} [N]")
+            if j == 0:
+                ax.set_ylabel(names[i] if i < len(names) else f"#{i}", fontsize=7)
+    axes[0][0].legend(fontsize=7, loc="best")
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]" if dt else "step")
+    fig.tight_layout()
+    return fig
+
+
+class ForceMetricsCallback(Callback):
+    """After validation (and test) epochs: sample forces for the evaluation set, log metrics and figures.
+
+    How often is the trainer's ``check_val_every_n_epoch``; how many trajectories is the DataModule's
+    ``n_eval``; how many samples per trajectory is ``n_samples`` (None = the model's own default).
+    """
+
+    def __init__(self, n_samples: int | None = None, n_plot: int = 3, plot_every_n_evals: int = 1,
+                 seed: int = 0) -> None:
+        super().__init__()
+        self.n_samples = n_samples
+        self.n_plot = int(n_plot)
+        self.plot_every_n_evals = max(1, int(plot_every_n_evals))
+        self.seed = int(seed)
+        self._evals = 0
+
+    def _run(self, trainer: L.Trainer, pl_module: Any, split: str, prefix: str) -> dict[str, float] | None:
+        datamodule = trainer.datamodule
+        if datamodule is None or not hasattr(datamodule, "eval_set"):
+            return None
+        dataset = datamodule.eval_set(split)
+        metrics, arrays = evaluate_model(pl_module, dataset, self.n_samples, self.seed)
+        for key, value in metrics.items():
+            # identical on every rank (same data, same seed): no sync needed
+            pl_module.log(f"{prefix}/{key}", value if math.isfinite(value) else float("nan"),
+                          prog_bar=key in ("R", "L_MSE"), sync_dist=False, rank_zero_only=False)
+        self._evals += 1
+        logger = trainer.logger
+        if (self.n_plot > 0 and trainer.is_global_zero and logger is not None
+                and hasattr(logger, "experiment") and hasattr(logger.experiment, "add_figure")
+                and (prefix == "test" or self._evals % self.plot_every_n_evals == 0)):
+            dt = 1.0 / float(datamodule.control_hz)
+            fig = force_figure(arrays, dataset.names, self.n_plot, dt)
+            logger.experiment.add_figure(f"{prefix}/forces", fig, global_step=trainer.global_step)
+        return metrics
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: Any) -> None:
+        if trainer.sanity_checking:
+            return
+        self._run(trainer, pl_module, "valid", "val")
+
+    def on_test_epoch_end(self, trainer: L.Trainer, pl_module: Any) -> None:
+        self._run(trainer, pl_module, "test", "test")
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"evals": self._evals}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._evals = int(state_dict.get("evals", 0))

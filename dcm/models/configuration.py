@@ -1,0 +1,136 @@
+"""Typed configurations of the force models and the errors raised on incompatible inputs.
+
+The LightningModules take these fields as plain keyword arguments (so Hydra overrides like
+``model.diffusion_steps=10`` and ``save_hyperparameters`` both work) and rebuild the dataclass from them;
+a checkpoint therefore reloads with nothing but its own file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Mapping
+
+from dcm.data.schema import CHANNELS
+
+# Per-step conditions and target, in this order along the channel axis. Changing it invalidates checkpoints.
+COND_FIELDS: tuple[str, ...] = ("x_demo", "F_demo", "x_attr", "K")
+TARGET_FIELD = "F_obs"
+
+
+def cond_channel_names() -> list[str]:
+    """The 24 condition channel names, e.g. ``x_demo.x_m`` ... ``K.Krz_Nmprad``."""
+    return [f"{f}.{c}" for f in COND_FIELDS for c in CHANNELS[f]]
+
+
+def target_channel_names() -> list[str]:
+    """The 6 target channel names, ``F_obs.Fx_N`` ... ``F_obs.Tz_Nm``."""
+    return [f"{TARGET_FIELD}.{c}" for c in CHANNELS[TARGET_FIELD]]
+
+
+class ModelInputError(ValueError):
+    """Base class of the model package's input errors."""
+
+
+class CheckpointKindError(ModelInputError):
+    """A checkpoint holds another model class than the one asked to load it."""
+
+
+class DatasetMismatchError(ModelInputError):
+    """A dataset's channels or control rate differ from those the model was trained on."""
+
+
+@dataclass
+class DataSpec:
+    """What the model was trained on; a dataset must match it to be evaluated or fine-tuned on."""
+
+    cond_channels: list[str] = field(default_factory=cond_channel_names)
+    target_channels: list[str] = field(default_factory=target_channel_names)
+    control_hz: float = 20.0
+
+    def check(self, cond_channels: list[str], target_channels: list[str], control_hz: float,
+              source: str = "dataset") -> None:
+        """Raise :class:`DatasetMismatchError` naming the first difference."""
+        if list(cond_channels) != list(self.cond_channels):
+            raise DatasetMismatchError(
+                f"{source}: condition channels {list(cond_channels)} differ from the model's {self.cond_channels}")
+        if list(target_channels) != list(self.target_channels):
+            raise DatasetMismatchError(
+                f"{source}: target channels {list(target_channels)} differ from the model's {self.target_channels}")
+        if abs(float(control_hz) - float(self.control_hz)) > 1e-9:
+            raise DatasetMismatchError(
+                f"{source}: control rate {control_hz} Hz, but the model was trained at {self.control_hz} Hz")
+
+
+@dataclass
+class ForceModelConfig:
+    """Fields shared by the DCM and the single-pass baseline."""
+
+    # score net: {"name": <dcm.models.nets name>, **constructor kwargs}; conf/net/*.yaml
+    net: dict[str, Any] = field(default_factory=lambda: {"name": "retnet", "d_model": 128})
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 100
+    lr_schedule: str = "cosine"  # cosine (to 0 over the run) | constant
+    ema_decay: float = 0.999  # 0 disables the EMA copy
+    eval_batch_size: int = 256
+
+    def __post_init__(self) -> None:
+        if self.lr <= 0:
+            raise ModelInputError(f"lr must be > 0, got {self.lr}")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ModelInputError(f"ema_decay must be in [0, 1), got {self.ema_decay}")
+        if self.lr_schedule not in ("cosine", "constant"):
+            raise ModelInputError(f"lr_schedule must be 'cosine' or 'constant', got {self.lr_schedule!r}")
+        self.net = {k: v for k, v in dict(self.net).items() if k != "_target_"}
+        if "name" not in self.net:
+            raise ModelInputError(f"net config needs a 'name' (one of dcm.models.nets.SCORE_NETS), got {self.net}")
+        if self.warmup_steps < 0:
+            raise ModelInputError(f"warmup_steps must be >= 0, got {self.warmup_steps}")
+
+    @classmethod
+    def from_kwargs(cls, kwargs: Mapping[str, Any]):
+        """Build from keyword arguments, naming any unknown key instead of silently ignoring it."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(kwargs) - known)
+        if unknown:
+            raise ModelInputError(f"unknown {cls.__name__} fields {unknown}; known: {sorted(known)}")
+        return cls(**{k: (dict(v) if isinstance(v, Mapping) else v) for k, v in kwargs.items()})
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+MAX_DIFFUSION_STEPS = 100
+SAMPLERS = ("ddpm", "ddim")
+
+
+@dataclass
+class DCMConfig(ForceModelConfig):
+    """The diffusion contact model: DDPM with epsilon-prediction over the normalised force trajectory."""
+
+    diffusion_steps: int = 30  # T, 1..100
+    # noise schedule: dcm.models.diffusion.NoiseSchedule fields (name, beta_start, ...); conf/schedule/*.yaml
+    schedule: dict[str, Any] = field(default_factory=lambda: {"name": "linear"})
+    sampler: str = "ddpm"  # ddpm (ancestral, T steps) | ddim (deterministic, sampling_steps)
+    sampling_steps: int | None = None  # DDIM only; None = T
+    n_samples: int = 1  # k samples averaged per prediction during evaluation
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not 1 <= int(self.diffusion_steps) <= MAX_DIFFUSION_STEPS:
+            raise ModelInputError(f"diffusion_steps must be in 1..{MAX_DIFFUSION_STEPS}, got {self.diffusion_steps}")
+        if isinstance(self.schedule, str):
+            self.schedule = {"name": self.schedule}
+        self.schedule = {k: v for k, v in dict(self.schedule).items() if k != "_target_"}
+        if self.sampler not in SAMPLERS:
+            raise ModelInputError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
+        if self.sampling_steps is not None and not 1 <= int(self.sampling_steps) <= int(self.diffusion_steps):
+            raise ModelInputError(
+                f"sampling_steps must be in 1..diffusion_steps={self.diffusion_steps}, got {self.sampling_steps}")
+        if int(self.n_samples) < 1:
+            raise ModelInputError(f"n_samples must be >= 1, got {self.n_samples}")
+
+
+@dataclass
+class BaselineConfig(ForceModelConfig):
+    """The paper's T=1 baseline: the same score net regressing the force in one pass."""

@@ -1,0 +1,271 @@
+"""The Diffusion Contact Model as a LightningModule, and the base class it shares with the baseline.
+
+Both models own their normalisers (buffers, saved in every checkpoint), an EMA copy of the score net used
+for validation and prediction, and the one prediction call users need::
+
+    from dcm.models.dcm import DCM
+    model = DCM.load_from_checkpoint("runs/.../checkpoints/last.ckpt")
+    mean_N, std_N = model.predict_forces(x_demo, F_demo, x_attr, K, n_samples=8)   # (B,H,6) each, raw units
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any, ClassVar
+
+import lightning as L
+import numpy as np
+import torch
+from torch import nn
+
+from dcm.models import diffusion
+from dcm.models.configuration import (
+    CheckpointKindError,
+    DataSpec,
+    DCMConfig,
+    ForceModelConfig,
+    ModelInputError,
+)
+from dcm.models.nets import build_score_net
+from dcm.models.normalizer import MinMaxNormalizer
+
+COND_DIM = 24
+OUT_DIM = 6
+KIND_KEY = "dcm_model_kind"  # checkpoint key naming the class that wrote it
+
+
+def _checkpoint_kind(path: str | Path) -> tuple[str | None, dict[str, Any]]:
+    """The model kind and hyper-parameters stored in a checkpoint, without building the model."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelInputError(f"checkpoint {path} does not exist")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means "not a usable checkpoint"
+        raise ModelInputError(f"checkpoint {path} is not readable: {err}") from err
+    if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
+        raise ModelInputError(f"checkpoint {path} is not a Lightning checkpoint (no state_dict)")
+    return ckpt.get(KIND_KEY), dict(ckpt.get("hyper_parameters") or {})
+
+
+class ForceModel(L.LightningModule):
+    """Shared machinery: score net + EMA copy, normalisers, data spec, optimiser, ``predict_forces``."""
+
+    model_kind: ClassVar[str] = "force_model"
+    config_cls: ClassVar[type[ForceModelConfig]] = ForceModelConfig
+
+    def __init__(self, data_spec: dict[str, Any] | None = None, **config: Any) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.cfg = self.config_cls.from_kwargs(config)
+        self.data_spec = DataSpec(**(data_spec or {}))
+        net_kwargs = {k: v for k, v in self.cfg.net.items() if k != "name"}
+        self.net = build_score_net(self.cfg.net["name"], cond_dim=COND_DIM, out_dim=OUT_DIM, **net_kwargs)
+        self.ema_net: nn.Module | None = None
+        if self.cfg.ema_decay > 0:
+            self.ema_net = copy.deepcopy(self.net).requires_grad_(False)
+        self.cond_norm = MinMaxNormalizer(COND_DIM)
+        self.target_norm = MinMaxNormalizer(OUT_DIM)
+
+    # ------------------------------------------------------------------ checkpoint identity
+    @classmethod
+    def load_from_checkpoint(cls, checkpoint_path: str | Path, map_location: Any = None, **kwargs: Any):  # type: ignore[override]
+        """Load a checkpoint written by this class; another model's checkpoint raises CheckpointKindError."""
+        kind, _ = _checkpoint_kind(checkpoint_path)
+        if kind != cls.model_kind:
+            raise CheckpointKindError(
+                f"checkpoint {checkpoint_path} holds a {kind!r} model, not {cls.model_kind!r}; "
+                "load it with its own class or with dcm.models.predict.load_model, which picks the class")
+        return super().load_from_checkpoint(checkpoint_path, map_location=map_location or "cpu", **kwargs)
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint[KIND_KEY] = self.model_kind
+
+    # ------------------------------------------------------------------ normalisation
+    def fit_normalizers(self, cond_min: np.ndarray, cond_max: np.ndarray, target_min: np.ndarray,
+                        target_max: np.ndarray) -> None:
+        """Set the [-1, 1] statistics (from the training split); they are saved with the weights."""
+        self.cond_norm.fit(cond_min, cond_max)
+        self.target_norm.fit(target_min, target_max)
+
+    def _require_fitted(self) -> None:
+        if not (bool(self.cond_norm.fitted) and bool(self.target_norm.fitted)):
+            raise ModelInputError(f"{type(self).__name__}: normalisers are not fitted; call fit_normalizers "
+                                  "with the training split's statistics (train.py does) before use")
+
+    @property
+    def inference_net(self) -> nn.Module:
+        """The EMA weights when kept, else the trained ones."""
+        return self.ema_net if self.ema_net is not None else self.net
+
+    # ------------------------------------------------------------------ the model-specific parts
+    def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+             generator: torch.Generator | None = None) -> torch.Tensor:
+        raise NotImplementedError
+
+    def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
+                          generator: torch.Generator | None = None) -> torch.Tensor:
+        """(n_samples, B, H, 6) force samples in normalised units for normalised conditions (B, H, 24)."""
+        raise NotImplementedError
+
+    @property
+    def default_samples(self) -> int:
+        return 1
+
+    # ------------------------------------------------------------------ Lightning hooks
+    def on_fit_start(self) -> None:
+        self._require_fitted()
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        loss = self.loss(self.net, self.cond_norm.normalize(batch["cond"]), self.target_norm.normalize(batch["target"]))
+        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=batch["cond"].shape[0])
+        return loss
+
+    def _eval_loss(self, batch: dict[str, torch.Tensor], batch_idx: int, prefix: str) -> torch.Tensor:
+        # A fixed generator per batch makes the (noisy) diffusion loss comparable across epochs.
+        gen = torch.Generator(device=self.device).manual_seed(10_000 + batch_idx)
+        loss = self.loss(self.inference_net, self.cond_norm.normalize(batch["cond"]),
+                         self.target_norm.normalize(batch["target"]), generator=gen)
+        self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=batch["cond"].shape[0],
+                 sync_dist=True)
+        return loss
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._eval_loss(batch, batch_idx, "val")
+
+    def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._eval_loss(batch, batch_idx, "test")
+
+    @torch.no_grad()
+    def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
+        """EMA update after every optimiser step, with the usual warm-up so early averages are not stale."""
+        if self.ema_net is None:
+            return
+        step = max(int(self.global_step), 1)
+        decay = min(self.cfg.ema_decay, (1 + step) / (10 + step))
+        ema_params = list(self.ema_net.parameters())
+        params = [p.detach() for p in self.net.parameters()]
+        torch._foreach_lerp_(ema_params, params, 1.0 - decay)
+        for b_ema, b in zip(self.ema_net.buffers(), self.net.buffers()):
+            b_ema.copy_(b)
+
+    def configure_optimizers(self) -> Any:
+        optimizer = torch.optim.AdamW(self.net.parameters(), lr=self.cfg.lr, weight_decay=self.cfg.weight_decay)
+        warmup = int(self.cfg.warmup_steps)
+        total = 0
+        if self.cfg.lr_schedule == "cosine" and self._trainer is not None:
+            total = int(self.trainer.estimated_stepping_batches)
+            if not math.isfinite(total) or total <= 0:
+                total = 0  # max_epochs=-1 / only max_time: cosine has no end, fall back to constant
+
+        def factor(step: int) -> float:
+            if warmup and step < warmup:
+                return (step + 1) / warmup
+            if total > warmup:
+                progress = min(1.0, (step - warmup) / max(1, total - warmup))
+                return 0.5 * (1.0 + math.cos(math.pi * progress))
+            return 1.0
+
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    # ------------------------------------------------------------------ prediction API
+    @torch.no_grad()
+    def predict_normalized(self, cond_n: torch.Tensor, n_samples: int | None = None,
+                           generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and spread over ``n_samples`` samples, normalised units, for (B,H,24) normalised conditions."""
+        k = self.default_samples if n_samples is None else int(n_samples)
+        if k < 1:
+            raise ModelInputError(f"n_samples must be >= 1, got {n_samples}")
+        was_training = self.training
+        self.eval()
+        try:
+            means, stds = [], []
+            for chunk in cond_n.split(max(1, self.cfg.eval_batch_size // k)):
+                samples = self.sample_normalized(chunk, k, generator)
+                means.append(samples.mean(0))
+                stds.append(samples.std(0, unbiased=False) if k > 1 else torch.zeros_like(samples[0]))
+        finally:
+            self.train(was_training)
+        return torch.cat(means), torch.cat(stds)
+
+    @torch.no_grad()
+    def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
+                       generator: torch.Generator | None = None) -> tuple[Any, Any]:
+        """Predict the contact wrench F_obs for raw (un-normalised) inputs.
+
+        Args:
+            x_demo, F_demo, x_attr, K: (B,H,6) or (H,6) numpy arrays or tensors in the dataset's units
+                (m/rad, N/N·m, m/rad, N/m/N·m/rad, bowl frame), at the model's control rate.
+            n_samples: samples averaged per trajectory (DCM; default ``n_samples`` of the config). The
+                baseline is deterministic and ignores it (its spread is 0).
+            generator: a torch.Generator (on the model's device) for reproducible samples.
+
+        Returns:
+            ``(mean_N, std_N)``: predicted wrench and its spread over samples, (B,H,6) [N, N·m], numpy when
+            ``x_demo`` is numpy, else tensors on the inputs' device.
+        """
+        self._require_fitted()
+        as_numpy = isinstance(x_demo, np.ndarray)
+        parts = []
+        for name, value in (("x_demo", x_demo), ("F_demo", F_demo), ("x_attr", x_attr), ("K", K)):
+            t = torch.as_tensor(np.asarray(value) if not torch.is_tensor(value) else value, dtype=torch.float32)
+            if t.shape[-1:] != (6,) or t.dim() not in (2, 3):
+                raise ModelInputError(f"predict_forces: {name} must be (B,H,6) or (H,6), got {tuple(t.shape)}")
+            parts.append(t)
+        shapes = {tuple(p.shape) for p in parts}
+        if len(shapes) != 1:
+            raise ModelInputError(f"predict_forces: inputs differ in shape: {sorted(shapes)}")
+        single = parts[0].dim() == 2
+        out_device = parts[0].device
+        cond = torch.cat(parts, dim=-1).to(self.device)
+        if single:
+            cond = cond[None]
+        if not torch.isfinite(cond).all():
+            raise ModelInputError("predict_forces: inputs contain NaN or inf")
+        mean_n, std_n = self.predict_normalized(self.cond_norm.normalize(cond), n_samples, generator)
+        mean, std = self.target_norm.unnormalize(mean_n), self.target_norm.unnormalize_std(std_n)
+        if single:
+            mean, std = mean[0], std[0]
+        if as_numpy:
+            return mean.cpu().numpy(), std.cpu().numpy()
+        return mean.to(out_device), std.to(out_device)
+
+
+class DCM(ForceModel):
+    """DDPM with epsilon-prediction over the normalised F_obs trajectory, conditioned per step.
+
+    Training draws a uniform step t and regresses the injected noise; prediction runs ancestral DDPM over
+    all T steps (or DDIM over ``sampling_steps``) from pure noise, ``n_samples`` times, and averages.
+    """
+
+    model_kind = "dcm"
+    config_cls = DCMConfig
+    cfg: DCMConfig
+
+    def __init__(self, data_spec: dict[str, Any] | None = None, **config: Any) -> None:
+        super().__init__(data_spec=data_spec, **config)
+        self.noise_schedule = diffusion.NoiseSchedule(**self.cfg.schedule)
+        self.train_scheduler = diffusion.make_scheduler("ddpm", self.noise_schedule, self.cfg.diffusion_steps)
+        self.sample_scheduler = diffusion.make_scheduler(self.cfg.sampler, self.noise_schedule,
+                                                         self.cfg.diffusion_steps)
+        # validates DDIM's divisor rule now rather than at the first validation
+        diffusion._inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
+
+    @property
+    def default_samples(self) -> int:
+        return int(self.cfg.n_samples)
+
+    def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+             generator: torch.Generator | None = None) -> torch.Tensor:
+        return diffusion.diffusion_loss(net, cond_n, target_n, self.train_scheduler, generator=generator)
+
+    def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
+                          generator: torch.Generator | None = None) -> torch.Tensor:
+        return diffusion.sample_many(self.inference_net, cond_n, OUT_DIM, self.sample_scheduler, n_samples,
+                                     num_inference_steps=self.cfg.sampling_steps, generator=generator)
+
+
+__all__ = ["DCM", "ForceModel", "COND_DIM", "OUT_DIM", "KIND_KEY"]
