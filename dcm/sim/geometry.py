@@ -44,7 +44,7 @@ class BowlSpec:
     friction: float = 0.3
     solref: tuple[float, float] = (0.02, 1.0)
     solimp: tuple[float, float, float, float, float] = (0.0, 0.95, 0.005, 0.5, 2.0)
-    hfield_res: int = 128
+    hfield_res: int = 96
     lip_m: float = 0.04
     name: str = ""
 
