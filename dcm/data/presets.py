@@ -1,0 +1,144 @@
+"""Expand a dataset preset (``conf/dataset/*.yaml``) into the ordered list of demos to generate.
+
+The plan is a pure function of the config: demo indices, trajectory names, splits and seeds never depend
+on the number of workers, on sharding or on which demos were already finished.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+
+class PresetError(ValueError):
+    """An invalid dataset preset; names the config key."""
+
+
+@dataclass(frozen=True)
+class DemoJob:
+    """One demo and its stiffness search: everything a worker needs, picklable."""
+
+    index: int  # demo id within the dataset
+    skill: str  # skill group name in the preset
+    spec: dict[str, Any]  # DemoSpec dict (incl. bowl)
+    n_trials: int
+    trial_splits: tuple[str, ...]  # split of each trial: train | valid | test
+    seed: int  # derived from (base seed, index)
+    first_traj: int  # global index of its first trajectory (names are traj_%06d)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def derive_seed(base_seed: int, *keys: int) -> int:
+    """A 32-bit seed that depends only on (base seed, keys): independent of worker count and order."""
+    return int(np.random.SeedSequence([int(base_seed), *map(int, keys)]).generate_state(1, dtype=np.uint32)[0])
+
+
+def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _set_dotted(spec: dict[str, Any], dotted: str, value: Any) -> dict[str, Any]:
+    """Set ``a.b.c`` in a nested dict; a mapping value is deep-merged into what is there."""
+    keys = dotted.split(".")
+    patch: Any = value
+    for key in reversed(keys):
+        patch = {key: patch}
+    return deep_merge(spec, patch)
+
+
+def expand_skill(skill: Mapping[str, Any], defaults: Mapping[str, Any], where: str) -> list[dict[str, Any]]:
+    """Cartesian product of the skill's ``vary`` axes applied to its base demo spec."""
+    base = deep_merge(defaults, skill.get("spec", {}))
+    axes = skill.get("vary", []) or []
+    value_lists = []
+    for i, axis in enumerate(axes):
+        if "key" not in axis or not axis.get("values"):
+            raise PresetError(f"{where}.vary[{i}] needs 'key' and a non-empty 'values' list")
+        value_lists.append([(axis["key"], v) for v in axis["values"]])
+    specs = []
+    for combo in itertools.product(*value_lists):
+        spec = base
+        for key, value in combo:
+            spec = _set_dotted(spec, key, value)
+        specs.append(spec)
+    return specs
+
+
+def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: int | None = None,
+               waypoints: Mapping[str, Any] | None = None) -> list[DemoJob]:
+    """Every demo of a preset, in a fixed order, with its splits, trial count and seed.
+
+    Splits: a skill group's ``split`` is ``train``, ``valid``, ``test`` or ``trainval``. For ``trainval`` a
+    seeded ``valid_fraction`` goes to valid, either whole skills (``valid_by: skill``, the default; the
+    model is checked on unseen skills) or single trials of every skill (``valid_by: trial``; for presets
+    with very few skills).
+    """
+    defaults = {"duration_s": dataset.get("duration_s", 8.0), "bowl": dict(dataset.get("bowl", {}))}
+    groups: list[tuple[str, str, int, list[dict[str, Any]]]] = []
+    if waypoints is not None and waypoints.get("waypoints"):
+        spec = {"family": "waypoints", "waypoints": str(Path(str(waypoints["waypoints"])).expanduser().resolve()), "bowl": dict(waypoints["bowl"])}
+        n = int(n_trials_override or waypoints.get("n_trials", 20))
+        groups.append(("waypoints", str(waypoints.get("split", "train")), n, [spec]))
+    else:
+        skills = dataset.get("skills") or []
+        if not skills:
+            raise PresetError(f"dataset {dataset.get('name')!r} defines no skills")
+        for i, skill in enumerate(skills):
+            where = f"dataset.skills[{i}]"
+            name = str(skill.get("name", skill.get("spec", {}).get("family", f"skill{i}")))
+            split = str(skill.get("split", "train"))
+            if split not in ("train", "valid", "test", "trainval"):
+                raise PresetError(f"{where}.split = {split!r}; expected train, valid, test or trainval")
+            n = int(n_trials_override or skill.get("n_trials", 20))
+            if n < 1:
+                raise PresetError(f"{where}.n_trials = {n} must be >= 1")
+            groups.append((name, split, n, expand_skill(skill, defaults, where)))
+
+    valid_fraction = float(dataset.get("valid_fraction", 0.1))
+    valid_by = str(dataset.get("valid_by", "skill"))
+    if valid_by not in ("skill", "trial"):
+        raise PresetError(f"dataset.valid_by = {valid_by!r}; expected 'skill' or 'trial'")
+    split_rng = np.random.default_rng(derive_seed(base_seed, 0x5EED))
+
+    jobs: list[DemoJob] = []
+    next_traj = 0
+    for group_index, (name, split, n_trials, specs) in enumerate(groups):
+        valid_skills: set[int] = set()
+        if split == "trainval" and valid_by == "skill":
+            n_valid = int(round(valid_fraction * len(specs)))
+            valid_skills = set(split_rng.choice(len(specs), size=n_valid, replace=False).tolist())
+        for k, spec in enumerate(specs):
+            index = len(jobs)
+            if split != "trainval":
+                trial_splits = (split,) * n_trials
+            elif valid_by == "skill":
+                trial_splits = ("valid" if k in valid_skills else "train",) * n_trials
+            else:
+                n_valid = int(round(valid_fraction * n_trials))
+                valid_trials = set(split_rng.choice(n_trials, size=n_valid, replace=False).tolist())
+                trial_splits = tuple("valid" if t in valid_trials else "train" for t in range(n_trials))
+            jobs.append(DemoJob(index=index, skill=name, spec=spec, n_trials=n_trials, trial_splits=trial_splits,
+                                seed=derive_seed(base_seed, index), first_traj=next_traj))
+            next_traj += n_trials
+    return jobs
+
+
+def fingerprint(payload: Any) -> str:
+    """A short stable hash of JSON-able settings; part files carry it so stale parts are detected."""
+    text = json.dumps(payload, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
