@@ -115,7 +115,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "nominal": {"name": "nominal"},
     # A stand-in for a physical setup (not real data): values chosen to be plausible for a Franka with a
     # wiping sponge: ~30% more friction, a softer surface, a few N of joint friction, a tool 20% heavier
-    # than the controller's model, a few N of F/T bias, ~0.3 N noise, a 10 Hz sensor filter and one control
+    # than the controller's model, a few N of F/T bias, ~0.3 N noise, a 5 Hz sensor filter and one control
     # period (50 ms) of command latency.
     "realistic": {
         "name": "realistic",
@@ -126,7 +126,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "tool_mass_scale": 1.2,
         "ft_bias": [0.8, -0.5, 1.5, 0.02, -0.01, 0.0],
         "ft_noise_std": [0.3, 0.3, 0.4, 0.005, 0.005, 0.003],
-        "ft_lowpass_hz": 10.0,
+        "ft_lowpass_hz": 5.0,
         "latency_steps": 1,
     },
 }

@@ -139,6 +139,8 @@ class ToolEmbodiment:
     """
 
     name = "tool"
+    # Cartesian inertia the attractor equation uses (Λ): the nominal tool mass, isotropic.
+    attractor_inertia_kg = BODY_MASS_KG + TIP_MASS_KG
 
     def __init__(
         self,

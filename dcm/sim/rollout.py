@@ -1,0 +1,323 @@
+"""The ``Simulator``: demos and stiffness-schedule rollouts on one embodiment, reusing its MuJoCo model.
+
+What lives here (shared by both embodiments): demo recording, the attractor (``dcm.control``), stiffness
+limits and low-pass filtering, command latency, F/T bias/noise/low-pass from the ``DomainSpec``,
+divergence detection and the objectives ``L_task`` [N] and ``L_comp`` [kN/m].
+
+Timing: ``control_hz = 20`` by default (``dt = 0.05 s``, 25 physics substeps of 2 ms); a default 8 s demo
+gives ``H = 160`` control steps. Step ``k`` applies command ``k`` for one period and records the state at
+its end.
+
+Determinism: sensor noise is drawn from a generator seeded by the simulator seed and a hash of the inputs,
+so the same inputs give identical arrays, whatever ran before.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import zlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from dcm.control import (
+    StiffnessLimits,
+    attractor_from_demo,
+    compliance_loss,
+    filter_schedule,
+    task_loss,
+)
+from dcm.sim.demos import Demo, DemoSpec
+from dcm.sim.domain import DomainSpec
+from dcm.sim.embodiment import PHYSICS_DT_S, Embodiment
+from dcm.sim.geometry import BowlSpec
+
+EMBODIMENTS: dict[str, str] = {
+    "tool": "dcm.sim.tool:ToolEmbodiment",
+    "panda": "dcm.sim.panda:PandaEmbodiment",
+}
+_BAD_STATE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_CONTACTFULL,
+    mujoco.mjtWarning.mjWARN_CNSTRFULL,
+)
+
+
+class SimulatorError(ValueError):
+    """Bad input to the simulator (unknown embodiment, wrong shapes, NaN commands)."""
+
+
+def embodiment_class(name: str) -> type:
+    """Import an embodiment lazily, so a missing robosuite only breaks ``"panda"``."""
+    if name not in EMBODIMENTS:
+        raise SimulatorError(f"unknown embodiment {name!r}; known: {sorted(EMBODIMENTS)}")
+    module_name, cls_name = EMBODIMENTS[name].split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        raise SimulatorError(
+            f"embodiment {name!r} is unavailable: importing {module_name} failed ({err}); "
+            "use embodiment='tool' or install the missing dependency"
+        ) from err
+    return getattr(module, cls_name)
+
+
+@dataclass
+class Trial:
+    """One rollout of a stiffness schedule on a demo (all arrays (H, ...), bowl frame).
+
+    ``force_obs`` is the contact wrench as observed (domain sensing applied), ``force_sensor`` the wrist
+    F/T reading in the sensor frame. A diverged trial has ``failed=True``, a reason, ``L_task = inf`` and
+    its arrays hold the last valid values from the failure step on (never NaN).
+    """
+
+    x_attr: np.ndarray
+    stiffness: np.ndarray  # commanded schedule (H, 6)
+    x_obs: np.ndarray
+    v_obs: np.ndarray
+    force_obs: np.ndarray
+    force_sensor: np.ndarray
+    contact: np.ndarray  # (H,) bool
+    L_task: float
+    L_comp: float
+    failed: bool = False
+    failure_reason: str = ""
+    stiffness_applied: np.ndarray | None = None  # after low-pass filtering, what the controller used
+    failed_step: int = -1
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key, value in self.__dict__.items():
+            out[key] = value.tolist() if isinstance(value, np.ndarray) else value
+        return out
+
+
+@dataclass
+class _Execution:
+    x_obs: np.ndarray
+    v_obs: np.ndarray
+    force_obs: np.ndarray
+    force_sensor: np.ndarray
+    contact: np.ndarray
+    failed: bool = False
+    reason: str = ""
+    failed_step: int = -1
+
+
+@dataclass
+class DivergenceBounds:
+    """Limits past which a trial counts as diverged."""
+
+    max_force_N: float = 300.0  # contact force norm; the reference saw >100 N spikes only when unstable
+    max_above_surface_m: float = 0.15  # the tool flew off
+    max_below_surface_m: float = 0.04  # the tool tunnelled into the bowl
+
+
+class Simulator:
+    """Records demos and rolls out stiffness schedules on one embodiment.
+
+    Embodiments are built once per bowl and reused for every rollout (``reset`` between them). ``bowl``
+    is the default; a demo naming another bowl gets (and caches) its own model.
+    """
+
+    def __init__(
+        self,
+        embodiment: str = "panda",
+        bowl: BowlSpec | None = None,
+        domain: DomainSpec | None = None,
+        control_hz: float = 20.0,
+        seed: int = 0,
+        stiffness_tau_s: float = 0.2,
+        limits: StiffnessLimits | None = None,
+        bounds: DivergenceBounds | None = None,
+        physics_dt: float = PHYSICS_DT_S,
+    ) -> None:
+        if not (1.0 <= control_hz <= 500.0):
+            raise SimulatorError(f"control_hz = {control_hz} is outside [1, 500]")
+        self.embodiment_name = embodiment
+        self._cls = embodiment_class(embodiment)
+        self.bowl = bowl or BowlSpec()
+        self.domain = domain or DomainSpec()
+        self.control_hz = float(control_hz)
+        self.dt = 1.0 / self.control_hz
+        self.physics_dt = physics_dt
+        self.seed = int(seed)
+        self.stiffness_tau_s = stiffness_tau_s
+        self.limits = limits or StiffnessLimits()
+        self.bounds = bounds or DivergenceBounds()
+        self._embodiments: dict[str, Embodiment] = {}
+        self.embodiment_for(self.bowl)
+
+    # -- embodiments -----------------------------------------------------------------------------
+    def embodiment_for(self, bowl: BowlSpec) -> Embodiment:
+        """The (cached) embodiment whose model contains ``bowl``."""
+        key = json.dumps(bowl.to_dict(), sort_keys=True)
+        if key not in self._embodiments:
+            self._embodiments[key] = self._cls(bowl, self.domain, control_dt=self.dt, physics_dt=self.physics_dt)
+        return self._embodiments[key]
+
+    @property
+    def embodiment(self) -> Embodiment:
+        return self.embodiment_for(self.bowl)
+
+    # -- public API ------------------------------------------------------------------------------
+    def record_demo(self, spec: DemoSpec) -> Demo:
+        """Execute ``spec`` with the demonstration controller and record (x_demo, force_demo)."""
+        attractor = spec.attractor_path(self.control_hz)
+        stiffness = np.tile(np.r_[spec.stiffness_Npm, 20.0, 20.0, 20.0], (len(attractor), 1))
+        start = spec.start_pose(self.control_hz)
+        emb = self.embodiment_for(spec.bowl)
+        run = self._execute(emb, spec.bowl, start, attractor, stiffness, self._rng("demo", spec.to_json()))
+        if run.failed:
+            raise SimulatorError(f"recording demo {spec.name or spec.family!r} diverged: {run.reason}")
+        return Demo(spec=spec, dt=self.dt, x_demo=run.x_obs, force_demo=run.force_obs, start_pose=start,
+                    contact=run.contact)
+
+    def rollout(self, demo: Demo, stiffness: np.ndarray) -> Trial:
+        """Run the impedance controller with schedule ``stiffness`` (H, 6) on the attractor of ``demo``.
+
+        Raises ``StiffnessOutOfRange`` for values outside ``self.limits`` and ``SimulatorError`` for
+        mismatched shapes or non-finite demo data; divergence gives a failed ``Trial`` instead.
+        """
+        stiffness = np.asarray(stiffness, dtype=np.float64)
+        x_demo = np.asarray(demo.x_demo, dtype=np.float64)
+        force_demo = np.asarray(demo.force_demo, dtype=np.float64)
+        horizon = x_demo.shape[0]
+        if stiffness.shape != (horizon, 6) or force_demo.shape != (horizon, 6) or x_demo.shape != (horizon, 6):
+            raise SimulatorError(
+                f"rollout needs x_demo, force_demo and stiffness of shape (H, 6) with the same H; got "
+                f"{x_demo.shape}, {force_demo.shape}, {stiffness.shape}"
+            )
+        for name, arr in (("x_demo", x_demo), ("force_demo", force_demo)):
+            if not np.all(np.isfinite(arr)):
+                t, c = np.argwhere(~np.isfinite(arr))[0]
+                raise SimulatorError(f"demo {name}[t={t}, channel {c}] = {arr[t, c]} is not finite")
+        if abs(demo.dt - self.dt) > 1e-9:
+            raise SimulatorError(f"demo dt = {demo.dt} s does not match the simulator's control dt = {self.dt} s")
+        self.limits.check(stiffness, where="stiffness")
+        inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
+        x_attr = attractor_from_demo(x_demo, force_demo, stiffness, self.dt, inertia=inertia)
+        applied = filter_schedule(stiffness, self.dt, tau_s=self.stiffness_tau_s)
+        start = demo.start_pose if demo.start_pose is not None else demo.spec.start_pose(self.control_hz)
+        emb = self.embodiment_for(demo.spec.bowl)
+        digest = (x_demo.tobytes(), force_demo.tobytes(), stiffness.tobytes())
+        run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, self._rng("rollout", *digest))
+        if run.failed:
+            l_task = float("inf")
+        else:
+            l_task = float(task_loss(run.force_obs, force_demo))
+        return Trial(
+            x_attr=x_attr,
+            stiffness=stiffness,
+            x_obs=run.x_obs,
+            v_obs=run.v_obs,
+            force_obs=run.force_obs,
+            force_sensor=run.force_sensor,
+            contact=run.contact,
+            L_task=l_task,
+            L_comp=float(compliance_loss(stiffness)),
+            failed=run.failed,
+            failure_reason=run.reason,
+            stiffness_applied=applied,
+            failed_step=run.failed_step,
+        )
+
+    def constant_stiffness(self, demo: Demo, translational_Npm: Any, rotational: float = 20.0) -> np.ndarray:
+        """Convenience: a constant (H, 6) schedule for ``demo``."""
+        k = np.r_[np.broadcast_to(np.asarray(translational_Npm, float), (3,)), [rotational] * 3]
+        return np.tile(k, (demo.horizon, 1))
+
+    # -- internals -------------------------------------------------------------------------------
+    def _rng(self, *parts: Any) -> np.random.Generator:
+        crc = 0
+        for part in parts:
+            crc = zlib.crc32(part if isinstance(part, bytes) else str(part).encode(), crc)
+        return np.random.default_rng([self.seed, crc])
+
+    def _execute(
+        self,
+        emb: Embodiment,
+        bowl: BowlSpec,
+        start_pose: np.ndarray,
+        attractor: np.ndarray,
+        stiffness: np.ndarray,
+        rng: np.random.Generator,
+    ) -> _Execution:
+        """Reset at ``start_pose`` and run the commands; applies latency and sensing; detects divergence."""
+        horizon = len(attractor)
+        if not np.all(np.isfinite(attractor)):
+            t, c = np.argwhere(~np.isfinite(attractor))[0]
+            raise SimulatorError(f"attractor[t={t}, channel {c}] is not finite")
+        emb.reset(start_pose)
+        x_obs = np.zeros((horizon, 6))
+        v_obs = np.zeros((horizon, 6))
+        f_contact = np.zeros((horizon, 6))
+        f_sensor = np.zeros((horizon, 6))
+        contact = np.zeros(horizon, dtype=bool)
+        latency = int(self.domain.latency_steps)
+        bounds = self.bounds
+        data = emb.data
+        failed, reason, failed_step = False, "", -1
+        for k in range(horizon):
+            j = k - latency
+            if j >= 0:
+                result = emb.step(attractor[j], stiffness[j])
+            else:  # the first command has not arrived yet: keep holding the start pose
+                result = emb.step(start_pose, stiffness[0])
+            x_obs[k], v_obs[k] = result.pose, result.velocity
+            f_contact[k], f_sensor[k] = result.force_contact, result.force_sensor
+            contact[k] = result.in_contact
+            reason = self._divergence(result, data, bowl, bounds)
+            if reason:
+                failed, failed_step = True, k
+                reason = f"step {k} (t = {k * self.dt:.2f} s): {reason}"
+                last = max(k - 1, 0)
+                for arr in (x_obs, v_obs, f_contact, f_sensor):
+                    arr[k:] = arr[last] if k > 0 else 0.0
+                    if not np.all(np.isfinite(arr)):
+                        arr[~np.isfinite(arr)] = 0.0
+                contact[k:] = False
+                break
+        force_obs = self._sense(f_contact, rng)
+        force_sensor = self._sense(f_sensor, rng)
+        return _Execution(x_obs, v_obs, force_obs, force_sensor, contact, failed, reason, failed_step)
+
+    @staticmethod
+    def _divergence(result: Any, data: mujoco.MjData, bowl: BowlSpec, bounds: DivergenceBounds) -> str:
+        for warning in _BAD_STATE_WARNINGS:
+            if data.warning[warning].number > 0:
+                return f"MuJoCo warning {mujoco.mjtWarning(warning).name}"
+        values = (result.pose, result.velocity, result.force_contact)
+        if not all(np.all(np.isfinite(v)) for v in values):
+            return "non-finite pose, velocity or force"
+        force = float(np.linalg.norm(result.force_contact[:3]))
+        if force > bounds.max_force_N:
+            return f"contact force {force:.1f} N exceeds {bounds.max_force_N:g} N"
+        x, y, z = result.pose[:3]
+        hx, hy = bowl.half_extent_m
+        if abs(x) > hx or abs(y) > hy:
+            return f"tool at (x, y) = ({x:.3f}, {y:.3f}) m left the bowl's heightfield"
+        gap = z - bowl.height(x, y)
+        if gap > bounds.max_above_surface_m:
+            return f"tool {gap:.3f} m above the surface (limit {bounds.max_above_surface_m:g} m)"
+        if gap < -bounds.max_below_surface_m:
+            return f"tool {-gap:.3f} m below the surface (limit {bounds.max_below_surface_m:g} m)"
+        return ""
+
+    def _sense(self, wrench: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Domain sensing: bias + white noise, then a first-order low-pass at the control rate."""
+        domain = self.domain
+        if not domain.has_sensing_effects:
+            return wrench
+        out = wrench + np.asarray(domain.ft_bias)
+        out = out + rng.standard_normal(wrench.shape) * np.asarray(domain.ft_noise_std)
+        if domain.ft_lowpass_hz > 0:
+            alpha = 1.0 - np.exp(-2.0 * np.pi * domain.ft_lowpass_hz * self.dt)
+            for k in range(1, len(out)):
+                out[k] = out[k - 1] + alpha * (out[k] - out[k - 1])
+        return out
