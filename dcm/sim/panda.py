@@ -1,0 +1,367 @@
+"""``panda``: a Franka Panda wiping the bowl under a Franka-style Cartesian impedance controller.
+
+The arm, its meshes and inertias come from robosuite's assets (``panda_assets``), simulated in plain MuJoCo.
+The controller is the one franka_ros' ``cartesian_impedance_example_controller`` runs:
+
+    tau = J^T (K (x_attr - x) - D xdot) + gravity + Coriolis + (I - J^T J^T+) (k_ns (q_ns - q) - d_ns qdot)
+
+with ``K`` the diagonal Cartesian stiffness (N/m, N·m/rad) and ``D = 2 sqrt(K)``. How it is executed, and why:
+
+* The spring-damper ``J^T (K e - D xdot)`` is six MuJoCo position actuators with *site transmission* on the
+  tool centre point, referenced to two mocap "attractor" sites (one world-aligned for the translations, one
+  carrying the attractor orientation for the rotations). MuJoCo evaluates it at every 2 ms physics step, with
+  the damping integrated implicitly (``implicitfast``), so the law is exact per physics step while Python only
+  rewrites six gains and the two mocap poses once per control period. Each joint's summed actuator torque is
+  clamped to Franka's limits (87/12 N·m).
+* Gravity is compensated by MuJoCo's body ``gravcomp`` (exact, every step). The tool is compensated with its
+  *configured* (nominal) mass, so a heavier tool in the shifted domain sags onto the surface as an unmodelled
+  payload does on a real arm.
+* Coriolis/centrifugal and the nullspace posture torque vary slowly at wiping speeds: they are computed once
+  per control period and held (``qfrc_applied``). ``bench``/tests measure that this is stable.
+
+Frames: the pose is the TCP (the far end of the sphere tip) in the bowl frame; its rotation vector is relative
+to "tool pointing straight down" in bowl axes. ``force_contact`` is the wrench on the tool from the bowl,
+estimated from the wrist sensor as a real setup does (tool weight and inertia removed), force in bowl axes and
+torque about the tip sphere's centre. ``force_sensor`` is the raw reading in the sensor-site (tool) frame:
+z along the tool, away from the flange.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from dcm.control import damping_from_stiffness
+from dcm.sim import panda_assets as pa
+from dcm.sim.domain import DomainSpec
+from dcm.sim.embodiment import CONTROL_DT_S, PHYSICS_DT_S, StepResult
+from dcm.sim.geometry import BowlSpec
+from dcm.sim.scene import add_bowl
+
+GRAVITY_MPS2 = 9.81
+# Bowl centre (lowest surface point) in the robot's base frame: in front of the base, low enough that the
+# hand points down comfortably over the whole bowl.
+BOWL_ORIGIN_WORLD = (0.5, 0.0, 0.1)
+# Nullspace posture spring (franka_ros uses a few N·m/rad, critically damped in joint space).
+NULLSPACE_STIFFNESS_NMPRAD = 2.0
+# Stiffness the actuators hold right after reset, before the first command arrives.
+RESET_STIFFNESS = np.array([500.0, 500.0, 500.0, 20.0, 20.0, 20.0])
+
+
+_GRAVITY_VEC = np.array([0.0, 0.0, GRAVITY_MPS2])
+_NOMINAL_MAT = np.zeros(9)
+mujoco.mju_quat2Mat(_NOMINAL_MAT, pa.NOMINAL_TOOL_QUAT)
+_NOMINAL_MAT = _NOMINAL_MAT.reshape(3, 3)
+
+
+class PandaError(ValueError):
+    """Bad input to the panda embodiment (names the value), or an unreachable pose."""
+
+
+def rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation vector [rad]."""
+    quat = np.zeros(4)
+    angle = float(np.linalg.norm(rotvec))
+    if angle < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    mujoco.mju_axisAngle2Quat(quat, np.asarray(rotvec, dtype=np.float64) / angle, angle)
+    return quat
+
+
+def tool_quat(rotvec: np.ndarray) -> np.ndarray:
+    """World orientation of the tool frame for a pose rotation vector (relative to pointing straight down)."""
+    out = np.zeros(4)
+    mujoco.mju_mulQuat(out, rotvec_to_quat(rotvec), pa.NOMINAL_TOOL_QUAT)
+    return out
+
+
+def mat_to_rotvec(mat: np.ndarray) -> np.ndarray:
+    """Rotation vector [rad] of a 3x3 rotation matrix (flattened or not)."""
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.asarray(mat, dtype=np.float64).reshape(9))
+    out = np.zeros(3)
+    mujoco.mju_quat2Vel(out, quat, 1.0)
+    return out
+
+
+class PandaEmbodiment:
+    """The paper's setup: a Panda with a sphere-tipped wiping tool and a wrist F/T sensor.
+
+    One MuJoCo model is built at construction and reused; ``reset`` solves inverse kinematics once per distinct
+    start pose (cached) and ``step`` runs one control period of ``control_dt / physics_dt`` physics substeps.
+    """
+
+    name = "panda"
+
+    def __init__(
+        self,
+        bowl: BowlSpec,
+        domain: DomainSpec | None = None,
+        control_dt: float = CONTROL_DT_S,
+        physics_dt: float = PHYSICS_DT_S,
+        *,
+        tool: pa.ToolSpec | None = None,
+        bowl_origin_world: Sequence[float] = BOWL_ORIGIN_WORLD,
+        nullspace_stiffness: float = NULLSPACE_STIFFNESS_NMPRAD,
+        coriolis: bool = True,
+        visual: bool = True,
+    ) -> None:
+        n_sub = control_dt / physics_dt
+        if physics_dt <= 0 or abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
+            raise PandaError(f"control_dt={control_dt} must be a whole multiple of physics_dt={physics_dt}")
+        self.bowl = bowl
+        self.domain = domain or DomainSpec()
+        self.control_dt = float(control_dt)
+        self.n_substeps = int(round(n_sub))
+        self.tool = tool or pa.ToolSpec()
+        self.origin = np.asarray(bowl_origin_world, dtype=np.float64)
+        if self.origin.shape != (3,) or not np.all(np.isfinite(self.origin)):
+            raise PandaError(f"bowl_origin_world must be 3 finite numbers, got {bowl_origin_world!r}")
+        self.nullspace_stiffness = float(nullspace_stiffness)
+        self.nullspace_damping = 2.0 * np.sqrt(self.nullspace_stiffness)
+        self.coriolis = coriolis
+
+        # The controller's model of the tool has the nominal mass; the simulated tool may be heavier.
+        self.tool_mass_kg = self.tool.mass_kg * self.domain.tool_mass_scale
+        self.spec = pa.build_panda_spec(
+            pa.ToolSpec(self.tool.length_m, self.tool.tip_radius_m, self.tool_mass_kg, self.tool.shaft_radius_m),
+            tool_gravcomp=1.0 / self.domain.tool_mass_scale,
+            joint_damping=self.domain.joint_damping,
+            joint_frictionloss=self.domain.joint_frictionloss,
+            timestep=physics_dt,
+            visual=visual,
+        )
+        self.spec.modelname = "dcm_panda"
+        self.spec.visual.global_.offwidth = 640
+        self.spec.visual.global_.offheight = 480
+        light = self.spec.worldbody.add_light()
+        light.pos = [0.5, 0.0, 1.5]
+        light.dir = [0.0, 0.0, -1.0]
+        add_bowl(self.spec, bowl, self.domain, origin_world=tuple(self.origin))
+        self.model = self.spec.compile()
+        self.data = mujoco.MjData(self.model)
+
+        m = self.model
+        self._tcp = m.site(pa.TIP_SITE).id
+        self._ft = m.site(pa.FT_SITE).id
+        self._tool_body = m.body(pa.TOOL_BODY).id
+        self._mocap_pos = m.body(pa.ATTR_POS_BODY).mocapid[0]
+        self._mocap_rot = m.body(pa.ATTR_ROT_BODY).mocapid[0]
+        self._act = np.array([m.actuator(n).id for n in pa.IMPEDANCE_ACTUATORS])
+        self._dofs = np.array([m.joint(n).dofadr[0] for n in pa.JOINT_NAMES])
+        self._qadr = np.array([m.joint(n).qposadr[0] for n in pa.JOINT_NAMES])
+        if not (np.array_equal(self._act, np.arange(6)) and np.array_equal(self._dofs, np.arange(7))):
+            raise PandaError("unexpected model layout: impedance actuators and arm dofs must come first")
+        self._jnt_range = m.jnt_range[[m.joint(n).id for n in pa.JOINT_NAMES]].copy()
+        f_adr, t_adr = m.sensor(pa.FT_FORCE_SENSOR).adr[0], m.sensor(pa.FT_TORQUE_SENSOR).adr[0]
+        if t_adr != f_adr + 3:
+            raise PandaError("F/T force and torque sensors must be adjacent")
+        self._ft_slice = slice(f_adr, f_adr + 6)
+        self._tool_gravcomp = float(m.body_gravcomp[self._tool_body])
+        # Lever arms in the tool frame: sensor site (origin) and tool COM relative to the tip sphere's centre.
+        centre = np.array([0.0, 0.0, self.tool.length_m])
+        self._sensor_from_centre = -centre
+        self._com_from_centre = m.body_ipos[self._tool_body] - centre
+
+        self._gain = m.actuator_gainprm[:6]
+        self._bias = m.actuator_biasprm[:6]
+        self._ik_cache: dict[tuple[float, ...], np.ndarray] = {}
+        self._q_nullspace = pa.HOME_QPOS.copy()
+        self._sensor_acc = np.zeros(6)
+        self._rot_acc = np.zeros(9)
+        self._jac = np.zeros((6, m.nv))
+        self._jac_com = np.zeros((3, m.nv))
+        self.set_stiffness(RESET_STIFFNESS)
+        self.reset(np.array([0.0, 0.0, 0.05, 0.0, 0.0, 0.0]))
+
+    # -- frames ------------------------------------------------------------------------------------
+    def tcp_pose(self) -> np.ndarray:
+        """Current TCP pose (6,) in the bowl frame (from the last kinematics pass)."""
+        pose = np.empty(6)
+        pose[:3] = self.data.site_xpos[self._tcp] - self.origin
+        rot = self.data.site_xmat[self._tcp].reshape(3, 3) @ _NOMINAL_MAT.T
+        pose[3:] = mat_to_rotvec(rot)
+        return pose
+
+    def tcp_velocity(self) -> np.ndarray:
+        """Current TCP twist (6,): linear [m/s] then angular [rad/s], bowl axes."""
+        res = np.zeros(6)
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self._tcp, res, 0)
+        return np.concatenate([res[3:], res[:3]])
+
+    def _check_pose(self, pose: np.ndarray, what: str) -> np.ndarray:
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape != (6,) or not math.isfinite(pose.sum()):
+            raise PandaError(f"{what} must be 6 finite numbers (bowl frame), got {pose!r}")
+        return pose
+
+    # -- inverse kinematics --------------------------------------------------------------------------
+    def solve_ik(self, pose: np.ndarray, iters: int = 400, tol: float = 1e-5) -> np.ndarray:
+        """Joint angles putting the TCP at ``pose`` (bowl frame), by damped least squares from the home posture.
+
+        Always starts from ``HOME_QPOS`` (not the current state) so the answer depends only on the pose; a
+        nullspace pull keeps the elbow near home. Results are cached per pose.
+        """
+        pose = self._check_pose(pose, "reset pose")
+        key = tuple(np.round(pose, 9))
+        if key in self._ik_cache:
+            return self._ik_cache[key].copy()
+        m = self.model
+        d = mujoco.MjData(m)
+        d.qpos[self._qadr] = pa.HOME_QPOS
+        target_pos = pose[:3] + self.origin
+        target_quat = tool_quat(pose[3:])
+        jac = np.zeros((6, m.nv))
+        err = np.zeros(6)
+        site_quat, neg, dq_quat = np.zeros(4), np.zeros(4), np.zeros(4)
+        damping = 1e-4
+        for it in range(iters):
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            err[:3] = target_pos - d.site_xpos[self._tcp]
+            mujoco.mju_mat2Quat(site_quat, d.site_xmat[self._tcp])
+            mujoco.mju_negQuat(neg, site_quat)
+            mujoco.mju_mulQuat(dq_quat, target_quat, neg)
+            mujoco.mju_quat2Vel(err[3:], dq_quat, 1.0)
+            if err[:3] @ err[:3] < tol**2 and err[3:] @ err[3:] < (10 * tol) ** 2 and it > 0:
+                break
+            mujoco.mj_jacSite(m, d, jac[:3], jac[3:], self._tcp)
+            j = jac[:, self._dofs]
+            jjt = j @ j.T + damping * np.eye(6)
+            j_pinv = j.T @ np.linalg.inv(jjt)
+            step = j_pinv @ err
+            q = d.qpos[self._qadr]
+            if it < iters // 2:  # posture pull first, then converge on the task alone
+                step += (np.eye(7) - j_pinv @ j) @ (0.1 * (pa.HOME_QPOS - q))
+            norm = np.linalg.norm(step)
+            if norm > 0.2:
+                step *= 0.2 / norm
+            d.qpos[self._qadr] = np.clip(q + step, self._jnt_range[:, 0], self._jnt_range[:, 1])
+        else:
+            raise PandaError(
+                f"inverse kinematics did not converge for pose {np.round(pose, 4).tolist()} (bowl frame): "
+                f"residual {np.linalg.norm(err[:3]) * 1000:.2f} mm, {np.degrees(np.linalg.norm(err[3:])):.2f} deg; "
+                "is it outside the Panda's workspace?"
+            )
+        q = d.qpos[self._qadr].copy()
+        self._ik_cache[key] = q
+        return q.copy()
+
+    # -- control -------------------------------------------------------------------------------------
+    def set_stiffness(self, stiffness: np.ndarray) -> None:
+        """Write K and D = 2 sqrt(K) into the six impedance actuators (bowl-axis translation, rotation)."""
+        k = np.asarray(stiffness, dtype=np.float64)
+        if k.shape != (6,) or not math.isfinite(k.sum()) or k.min() < 0:
+            raise PandaError(f"stiffness must be 6 finite non-negative numbers, got {k!r}")
+        self._gain[:, 0] = k
+        self._bias[:, 1] = -k
+        self._bias[:, 2] = -damping_from_stiffness(k)
+
+    def set_attractor(self, attractor: np.ndarray) -> None:
+        """Move the two mocap attractor sites to ``attractor`` (bowl frame)."""
+        attractor = self._check_pose(attractor, "attractor")
+        pos = attractor[:3] + self.origin
+        self.data.mocap_pos[self._mocap_pos] = pos
+        self.data.mocap_pos[self._mocap_rot] = pos
+        self.data.mocap_quat[self._mocap_pos] = (1.0, 0.0, 0.0, 0.0)
+        self.data.mocap_quat[self._mocap_rot] = tool_quat(attractor[3:])
+
+    def _slow_torques(self) -> None:
+        """Coriolis and nullspace posture torque, held over the control period (slowly varying terms)."""
+        m, d = self.model, self.data
+        tau = np.zeros(7)
+        if self.coriolis:
+            # qfrc_bias = Coriolis + full gravity; gravcomp removed the compensated gravity already. What is left
+            # of the tool's weight beyond its configured mass must stay uncompensated.
+            tau += d.qfrc_bias[:7]
+            tau -= d.qfrc_gravcomp[:7]
+            if self._tool_gravcomp != 1.0:
+                mujoco.mj_jacBodyCom(m, d, self._jac_com, None, self._tool_body)
+                tool_weight = m.body_mass[self._tool_body] * GRAVITY_MPS2
+                tau -= (1.0 - self._tool_gravcomp) * tool_weight * self._jac_com[2, :7]
+        if self.nullspace_stiffness > 0:
+            # Franka's projector I - J^T (J^T)^+, with a damped pseudo-inverse (J J^T + eps I)^-1 J.
+            mujoco.mj_jacSite(m, d, self._jac[:3], self._jac[3:], self._tcp)
+            j = self._jac[:, :7]
+            jjt = j @ j.T
+            jjt[np.diag_indices(6)] += 1e-6
+            posture = self.nullspace_stiffness * (self._q_nullspace - d.qpos[self._qadr])
+            posture -= self.nullspace_damping * d.qvel[:7]
+            tau += posture - j.T @ np.linalg.solve(jjt, j @ posture)
+        d.qfrc_applied[:7] = tau
+
+    def reset(self, pose: np.ndarray) -> None:
+        """Arm at rest with the TCP at ``pose`` (bowl frame) and the attractor there; nullspace target = this q."""
+        q = self.solve_ik(pose)
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[self._qadr] = q
+        self._q_nullspace = q.copy()
+        self.set_attractor(pose)
+        mujoco.mj_forward(m, d)
+        self._slow_torques()
+
+    def step(self, attractor: np.ndarray, stiffness: np.ndarray) -> StepResult:
+        """One control period towards ``attractor`` with stiffness ``K``; wrench averaged over the substeps.
+
+        If MuJoCo reports a numerical instability during the period, pose/velocity/wrench come back as NaN so
+        the caller's divergence check marks the trial failed.
+        """
+        m, d = self.model, self.data
+        self.set_attractor(attractor)
+        self.set_stiffness(stiffness)
+        self._slow_torques()
+        warnings_before = int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
+        v_start = self.tcp_velocity()[:3]
+        acc, racc = self._sensor_acc, self._rot_acc
+        acc[:] = 0.0
+        racc[:] = 0.0
+        sensor = d.sensordata[self._ft_slice]
+        xmat = d.site_xmat[self._ft]
+        contact = False
+        step = mujoco.mj_step
+        for _ in range(self.n_substeps):
+            step(m, d)
+            acc += sensor
+            racc += xmat
+            if d.ncon:
+                contact = True
+        mujoco.mj_forward(m, d)
+        if int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number) != warnings_before:
+            nan = np.full(6, np.nan)
+            return StepResult(nan, nan.copy(), nan.copy(), nan.copy(), contact)
+        sensor_mean = acc / self.n_substeps
+        rot = (racc / self.n_substeps).reshape(3, 3)
+        velocity = self.tcp_velocity()
+        accel = (velocity[:3] - v_start) / self.control_dt
+        return StepResult(
+            pose=self.tcp_pose(),
+            velocity=velocity,
+            force_contact=self.contact_wrench(sensor_mean, rot, accel),
+            force_sensor=sensor_mean.copy(),
+            in_contact=contact,
+        )
+
+    def contact_wrench(self, sensor: np.ndarray, rot: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """Wrench of the bowl on the tool from an F/T reading, as a real setup estimates it.
+
+        ``sensor`` is the force/torque the flange exerts on the tool, in the sensor (tool) frame; ``rot`` the
+        tool frame's orientation; ``accel`` the tool's linear acceleration [m/s²]. Newton for the tool gives
+        F_contact = m (a + g z) - f_sensor; the torque balance about the tip sphere's centre moves the sensor
+        torque there and removes the moment of the tool's weight (and inertia) about it.
+        """
+        f_s, t_s = sensor[:3], sensor[3:]
+        inertial_tool = self.tool_mass_kg * (rot.T @ (accel + _GRAVITY_VEC))
+        f_c = inertial_tool - f_s
+        # Both lever arms lie on the tool axis (tool z): (0, 0, a) x f = (-a f_y, a f_x, 0).
+        a_s, a_c = self._sensor_from_centre[2], self._com_from_centre[2]
+        t_c = -t_s
+        t_c[0] += a_s * f_s[1] - a_c * inertial_tool[1]
+        t_c[1] += -a_s * f_s[0] + a_c * inertial_tool[0]
+        out = np.empty(6)
+        out[:3] = rot @ f_c
+        out[3:] = rot @ t_c
+        return out
