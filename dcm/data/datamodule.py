@@ -113,7 +113,10 @@ class DCMDataModule(L.LightningDataModule):
         self.num_workers = int(num_workers)
         self.expect_control_hz = expect_control_hz
         self.n_eval = None if n_eval is None else int(n_eval)
-        self.save_hyperparameters()
+        # plain types only, so checkpoints stay loadable with torch.load(weights_only=True)
+        self.save_hyperparameters({"path": str(self.path), "stage": stage, "usage_rate": usage_rate,
+                                   "seed": self.seed, "batch_size": self.batch_size, "n_eval": self.n_eval,
+                                   "expect_control_hz": expect_control_hz})
         self.splits: dict[str, TrajectoryDataset] = {}
         self.attrs: dict[str, Any] = {}
         self.cond_channels: list[str] = []

@@ -81,7 +81,7 @@ class ForceModelConfig:
             raise ModelInputError(f"ema_decay must be in [0, 1), got {self.ema_decay}")
         if self.lr_schedule not in ("cosine", "constant"):
             raise ModelInputError(f"lr_schedule must be 'cosine' or 'constant', got {self.lr_schedule!r}")
-        self.net = {k: v for k, v in dict(self.net).items() if k != "_target_"}
+        self.net = _net_config(self.net)
         if "name" not in self.net:
             raise ModelInputError(f"net config needs a 'name' (one of dcm.models.nets.SCORE_NETS), got {self.net}")
         if self.warmup_steps < 0:
@@ -98,6 +98,19 @@ class ForceModelConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def _net_config(net: Mapping[str, Any]) -> dict[str, Any]:
+    """Plain {name, **kwargs}; a ``_target_`` naming a registered net class stands in for ``name``."""
+    net = dict(net)
+    target = net.pop("_target_", None)
+    if "name" not in net and target:
+        from dcm.models.nets import SCORE_NETS
+
+        by_path = {v.replace(":", "."): k for k, v in SCORE_NETS.items()}
+        if target in by_path:
+            net["name"] = by_path[target]
+    return net
 
 
 MAX_DIFFUSION_STEPS = 100

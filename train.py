@@ -1,0 +1,185 @@
+"""Train a force model (DCM or the single-pass baseline) with Lightning; configs in conf/train.yaml.
+
+    python train.py                                       # default DCM (T=30, RetNet d=128, linear) on data/sim.h5
+    python train.py model=baseline data=tiny              # the T=1 regression baseline on the tiny preset
+    python train.py -m model.diffusion_steps=1,5,10,30 seed=0,1,2      # sweep: one run dir per job
+    python train.py stage=finetune init_from=<ckpt> data=realistic     # keeps the pre-training normaliser
+    python train.py resume=<run_dir>                      # continue a killed run from <run_dir>/checkpoints/last.ckpt
+
+Each run directory holds config.yaml (resolved), tb/ (TensorBoard), checkpoints/ (top-k on val/R + last.ckpt)
+and summary.json.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import hydra
+import lightning as L
+from hydra.core.hydra_config import HydraConfig
+from hydra.utils import get_class, to_absolute_path
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.loggers import TensorBoardLogger
+from omegaconf import DictConfig, OmegaConf
+
+from dcm.data.datamodule import DCMDataModule
+from dcm.data.schema import read_root_attrs
+from dcm.models.callbacks import ForceMetricsCallback
+from dcm.models.configuration import CheckpointKindError
+from dcm.models.dcm import DCM, ForceModel
+from dcm.models.predict import checkpoint_kind
+
+log = logging.getLogger("dcm.train")
+
+# Fields a fine-tuning run may change; everything else (net, T, schedule, normaliser) comes from init_from.
+FINETUNE_FIELDS = ("lr", "weight_decay", "warmup_steps", "lr_schedule", "ema_decay", "eval_batch_size",
+                   "sampler", "sampling_steps", "n_samples")
+
+
+class TrainConfigError(ValueError):
+    """An inconsistent train.py configuration (stage, init_from, resume ...)."""
+
+
+def dataset_path(data_cfg: DictConfig) -> Path:
+    """The dataset file, generated from its preset first if it does not exist yet."""
+    if data_cfg.path in (None, "???"):
+        raise TrainConfigError("data.path is required (e.g. data=path data.path=/abs/file.h5)")
+    path = Path(to_absolute_path(str(data_cfg.path)))
+    if not path.exists():
+        if not data_cfg.get("preset"):
+            raise TrainConfigError(f"dataset {path} does not exist and data.preset is null: nothing to generate")
+        log.info("dataset %s is absent: generating preset %r", path, data_cfg.preset)
+        from dcm.data.generate import ensure_dataset  # imports the simulator: only when needed
+
+        path = Path(ensure_dataset(str(data_cfg.preset), path, list(data_cfg.get("generate_overrides") or [])))
+    return path
+
+
+def build_datamodule(cfg: DictConfig, path: Path) -> DCMDataModule:
+    d = cfg.data
+    return DCMDataModule(path, stage=cfg.stage, usage_rate=cfg.usage_rate, seed=cfg.seed,
+                         batch_size=d.batch_size, eval_batch_size=d.eval_batch_size, num_workers=d.num_workers,
+                         expect_control_hz=d.get("expect_control_hz"), n_eval=d.get("n_eval"))
+
+
+def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
+    """A fresh model (normaliser fitted on the training split), or one initialised from ``init_from``."""
+    model_cfg: dict[str, Any] = OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[assignment]
+    cls: type[ForceModel] = get_class(model_cfg.pop("_target_"))
+    data_spec = {"control_hz": dm.control_hz}
+    if cfg.stage == "finetune" and not cfg.init_from:
+        raise TrainConfigError("stage=finetune needs init_from=<checkpoint of the pre-trained model>")
+    if cfg.init_from:
+        ckpt = Path(to_absolute_path(str(cfg.init_from)))
+        kind = checkpoint_kind(ckpt)
+        if kind != cls.model_kind:
+            raise CheckpointKindError(f"init_from={ckpt} holds a {kind!r} model but model={cls.model_kind!r} "
+                                      f"was selected; pass model={kind}")
+        init = cls.load_from_checkpoint(ckpt)
+        init.data_spec.check(dm.cond_channels, dm.target_channels, dm.control_hz, source=str(dm.path))
+        hparams = dict(init.hparams)
+        hparams.update({k: model_cfg[k] for k in FINETUNE_FIELDS if k in model_cfg})
+        model = cls(**hparams)
+        model.load_state_dict(init.state_dict())  # weights, EMA and the pre-training normaliser
+        if model.ema_net is not None:
+            model.net.load_state_dict(model.ema_net.state_dict())  # continue from the averaged weights
+        log.info("initialised from %s (normaliser kept from pre-training)", ckpt)
+        return model
+    if cls is DCM or issubclass(cls, DCM):
+        model_cfg["schedule"] = OmegaConf.to_container(cfg.schedule, resolve=True)
+    model_cfg["net"] = OmegaConf.to_container(cfg.net, resolve=True)
+    model = cls(data_spec=data_spec, **model_cfg)
+    model.fit_normalizers(*dm.train_stats())
+    return model
+
+
+def _has_split(path: Path, split: str) -> bool:
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            return split in f.get("mask", {}) and len(f["mask"][split]) > 0
+    except OSError:
+        return False
+
+
+def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
+    """Fit (or resume) one run in ``run_dir``; returns the summary also written to summary.json."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    ckpt_dir = run_dir / "checkpoints"
+    last = ckpt_dir / "last.ckpt"
+    resuming = bool(cfg.get("resume"))
+    L.seed_everything(int(cfg.seed), workers=True)
+
+    path = dataset_path(cfg.data)
+    read_root_attrs(path)  # fail fast on a file that is not a dcm dataset
+    if not resuming:
+        cfg.data.path = str(path)
+        if cfg.init_from:
+            cfg.init_from = str(Path(to_absolute_path(str(cfg.init_from))))
+        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+
+    dm = build_datamodule(cfg, path)
+    dm.setup("fit")
+    model = build_model(cfg, dm)
+
+    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, monitor=cfg.checkpoint.monitor, mode=cfg.checkpoint.mode,
+                                 save_top_k=int(cfg.checkpoint.save_top_k), save_last=True,
+                                 filename="epoch{epoch:03d}-R{val/R:.3f}", auto_insert_metric_name=False)
+    callbacks = [ForceMetricsCallback(**OmegaConf.to_container(cfg.metrics, resolve=True)), checkpoint,
+                 LearningRateMonitor(logging_interval="epoch")]
+    logger = TensorBoardLogger(save_dir=str(run_dir), name="tb", version="", default_hp_metric=False)
+    trainer_kwargs = OmegaConf.to_container(cfg.trainer, resolve=True)
+    trainer = L.Trainer(default_root_dir=str(run_dir), logger=logger, callbacks=callbacks, **trainer_kwargs)
+    trainer.fit(model, datamodule=dm, ckpt_path=str(last) if resuming else None)
+
+    best = checkpoint.best_model_path or (str(last) if last.exists() else "")
+    best_score = checkpoint.best_model_score
+    summary: dict[str, Any] = {
+        "run_dir": str(run_dir), "model": model.model_kind, "stage": cfg.stage, "dataset": str(path),
+        "n_train_used": len(dm.split("train")), "n_train_total": dm.n_train_total, "usage_rate": cfg.usage_rate,
+        "seed": int(cfg.seed), "epochs": int(trainer.current_epoch), "global_step": int(trainer.global_step),
+        "best_checkpoint": best, "monitor": cfg.checkpoint.monitor,
+        "best_score": None if best_score is None else float(best_score),
+    }
+    if cfg.test_after_fit and best and _has_split(path, "test"):
+        results = trainer.test(model, datamodule=dm, ckpt_path=best, verbose=False)
+        summary["test"] = {k: float(v) for k, v in (results[0] if results else {}).items()}
+    elif cfg.test_after_fit:
+        log.warning("no test split in %s (or no checkpoint): skipping the test pass", path)
+    if trainer.is_global_zero:
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    return summary
+
+
+def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
+    """The saved config and directory of the run to resume."""
+    run_dir = Path(to_absolute_path(str(cfg.resume)))
+    saved = run_dir / "config.yaml"
+    last = run_dir / "checkpoints" / "last.ckpt"
+    if not saved.is_file():
+        raise TrainConfigError(f"resume={run_dir}: no config.yaml there (is it a train.py run directory?)")
+    if not last.is_file():
+        raise TrainConfigError(f"resume={run_dir}: no checkpoints/last.ckpt to resume from")
+    resumed = OmegaConf.load(saved)
+    resumed.resume = str(run_dir)
+    return resumed, run_dir
+
+
+@hydra.main(version_base=None, config_path="conf", config_name="train")
+def main(cfg: DictConfig) -> float | None:
+    if cfg.get("resume"):
+        cfg, run_dir = resolve_resume(cfg)
+    else:
+        run_dir = Path(HydraConfig.get().runtime.output_dir)
+    summary = train(cfg, run_dir)
+    score = summary.get("best_score")
+    return None if score is None or not math.isfinite(score) else float(score)  # for Hydra sweepers
+
+
+if __name__ == "__main__":
+    main()
