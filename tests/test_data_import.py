@@ -1,0 +1,131 @@
+"""Import of real Franka logs: synthetic logs with jitter, other rates, a bias and noise match the clean signal."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from dcm.data.import_logs import NOMINAL_DOWN, LogFormatError, import_logs
+from dcm.data.schema import load_dataset
+
+CONTROL_HZ = 20.0
+START_S, END_S = 0.2, 6.2  # demo reference span -> H = 121
+BOWL_ROT = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # base yawed 90° from the bowl axes
+BOWL_ORIGIN = np.array([0.5, 0.1, 0.2])
+TIP_OFFSET = np.array([0.0, 0.0, 0.1])
+BIAS = np.array([1.0, -0.7, 2.5, 0.10, -0.05, 0.02])  # base frame, N and N·m
+NOISE_STD = np.array([0.5, 0.5, 0.5, 0.02, 0.02, 0.02])
+
+
+def _ramp(t: np.ndarray) -> np.ndarray:
+    """0 before 1 s (free motion), smooth rise to 1 at 2 s."""
+    s = np.clip(t - 1.0, 0.0, 1.0)
+    return 0.5 - 0.5 * np.cos(np.pi * s)
+
+
+def clean_pose(t: np.ndarray) -> np.ndarray:
+    """Tool-tip pose in the bowl frame: a slow circle, a small tilt."""
+    pos = np.stack([0.05 * np.cos(0.8 * t), 0.05 * np.sin(0.8 * t), 0.01 + 0.002 * np.sin(0.3 * t)], axis=1)
+    rotvec = np.stack([0.1 * np.sin(0.5 * t), 0.05 + 0 * t, 0.02 * np.cos(0.4 * t)], axis=1)
+    return np.column_stack([pos, rotvec])
+
+
+def clean_wrench(t: np.ndarray) -> np.ndarray:
+    """Contact wrench on the tool, bowl axes, torque about the tip; zero in free motion."""
+    r = _ramp(t)
+    return np.stack([1.5 * np.sin(0.7 * t) * r, -1.0 * np.cos(0.4 * t) * r, 6.0 * r,
+                     0.05 * np.sin(t) * r, 0.03 * r, 0.02 * r], axis=1)
+
+
+def _write_csv(path: Path, header: list[str], t: np.ndarray, values: np.ndarray) -> None:
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(np.column_stack([t, values]).tolist())
+
+
+def write_episode(root: Path, name: str, rng: np.random.Generator, base_frame: str = "panda_link0",
+                  column_major: bool = True) -> None:
+    """A synthetic log as a Franka would record it (the input format of dcm.data.import_logs)."""
+    episode = root / name
+    episode.mkdir(parents=True)
+    # pose stream: 1 kHz with ±0.2 ms jitter
+    pose_t = np.arange(-0.01, 6.5, 1e-3) + rng.uniform(-2e-4, 2e-4, size=len(np.arange(-0.01, 6.5, 1e-3)))
+    pose = clean_pose(pose_t)
+    rot_rel = Rotation.from_rotvec(pose[:, 3:]).as_matrix()
+    rot_base = BOWL_ROT @ rot_rel @ BOWL_ROT.T @ NOMINAL_DOWN
+    tip_base = pose[:, :3] @ BOWL_ROT.T + BOWL_ORIGIN
+    flange_base = tip_base - rot_base @ TIP_OFFSET
+    transforms = np.tile(np.eye(4), (len(pose_t), 1, 1))
+    transforms[:, :3, :3], transforms[:, :3, 3] = rot_base, flange_base
+    flat = transforms.reshape(-1, 16, order="F" if column_major else "C")
+    _write_csv(episode / "pose.csv", ["t"] + [f"T{i}" for i in range(16)], pose_t, flat)
+    # wrench stream: 500 Hz with ±0.3 ms jitter, O_F_ext_hat_K (base axes, torque about the flange), bias, noise
+    wrench_t = np.arange(0.0, 6.5, 2e-3)
+    wrench_t = wrench_t + rng.uniform(-3e-4, 3e-4, size=len(wrench_t))
+    wrench = clean_wrench(wrench_t)
+    rot_w = BOWL_ROT @ Rotation.from_rotvec(clean_pose(wrench_t)[:, 3:]).as_matrix() @ BOWL_ROT.T @ NOMINAL_DOWN
+    force_base = wrench[:, :3] @ BOWL_ROT.T
+    torque_tip_base = wrench[:, 3:] @ BOWL_ROT.T
+    torque_flange_base = torque_tip_base + np.cross(np.einsum("nij,j->ni", rot_w, TIP_OFFSET), force_base)
+    logged = np.column_stack([force_base, torque_flange_base]) + BIAS + rng.normal(size=(len(wrench_t), 6)) * NOISE_STD
+    _write_csv(episode / "wrench.csv", ["t", "Fx", "Fy", "Fz", "Tx", "Ty", "Tz"], wrench_t, logged)
+    # commanded stiffness in base axes (Kx != Ky to check the axis permutation), three phases
+    _write_csv(episode / "stiffness.csv", ["t", "Kx", "Ky", "Kz", "Krx", "Kry", "Krz"], np.array([-0.1, 2.0, 4.0]),
+               np.array([[300, 900, 500, 20, 20, 20], [1200, 400, 800, 20, 20, 20], [600, 600, 200, 20, 20, 20.0]]))
+    # demo reference at 20 Hz in the bowl frame
+    demo_t = np.arange(START_S, END_S + 1e-9, 1 / CONTROL_HZ)
+    _write_csv(episode / "demo.csv", ["t", "x", "y", "z", "rx", "ry", "rz", "Fx", "Fy", "Fz", "Tx", "Ty", "Tz"],
+               demo_t, np.column_stack([clean_pose(demo_t), clean_wrench(demo_t) * 1.1]))
+    (episode / "meta.json").write_text(json.dumps({
+        "demo_id": 0, "trial": int(name[-1]), "split": "train" if name[-1] != "2" else "test", "skill": "spiral",
+        "base_frame": base_frame, "bowl_in_base": np.vstack([np.column_stack([BOWL_ROT, BOWL_ORIGIN]),
+                                                             [0, 0, 0, 1]]).tolist(),
+        "free_motion_s": [0.0, 0.9], "tip_offset_m": TIP_OFFSET.tolist()}))
+
+
+def test_import_matches_clean_signal(tmp_path: Path) -> None:
+    """Tolerances, from the synthetic noise: the 5 Hz zero-phase 2nd-order Butterworth passes ~5.5 Hz of the
+    500 Hz stream's white noise, so 0.5 N becomes ~0.5·sqrt(11/500) ≈ 0.075 N; the bias estimate over 450 samples
+    adds ~0.5/sqrt(450) ≈ 0.024 N; the filter's gain error on the < 1 Hz signal is < 0.2 %. Hence force RMSE
+    < 0.15 N and max error < 0.4 N (≈ 5 σ), against 0.5 N of raw noise and 2.5 N of bias. Poses are linear
+    interpolations of a 1 kHz stream of a slow path: errors < 1e-5 m / rad; the 1e-4 bound leaves margin."""
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        write_episode(tmp_path / "logs", f"episode_{i}", rng)
+    out = tmp_path / "real.h5"
+    assert import_logs(tmp_path / "logs", out, control_hz=CONTROL_HZ) == 3
+    train = load_dataset(out, split="train", expect_control_hz=CONTROL_HZ)
+    assert len(train) == 2 and len(load_dataset(out, split="test")) == 1
+    grid = START_S + np.arange(train.horizon) / CONTROL_HZ
+    assert train.horizon == 121
+    expected_force, expected_pose = clean_wrench(grid), clean_pose(grid)
+    for k in range(len(train)):
+        force_err = train.arrays["F_obs"][k] - expected_force
+        assert np.sqrt((force_err[:, :3] ** 2).mean(axis=0)).max() < 0.15
+        assert np.abs(force_err[:, :3]).max() < 0.4
+        assert np.abs(force_err[:, 3:]).max() < 0.03  # torque: 0.02 N·m noise, same reasoning (≈ 0.003 N·m σ)
+        np.testing.assert_allclose(train.arrays["x_obs"][k], expected_pose, atol=1e-4)
+    K = train.arrays["K"][0]
+    np.testing.assert_allclose(K[grid < 2.0 - 1e-9][0], [900, 300, 500, 20, 20, 20])  # base y -> bowl x
+    np.testing.assert_allclose(K[(grid >= 2.0) & (grid < 4.0)][0], [400, 1200, 800, 20, 20, 20])
+    np.testing.assert_allclose(train.arrays["F_demo"][0], clean_wrench(grid) * 1.1, atol=1e-5)
+    assert train.attrs["import_lowpass_hz"] == 5.0 and train.attrs["import_lowpass_order"] == 2
+    assert train.arrays["contact"][0][grid > 2.0].all() and not train.arrays["contact"][0][grid < 0.9].any()
+    np.testing.assert_allclose(train.meta[0]["bias_removed"], BIAS, atol=0.1)
+
+
+def test_import_rejects_bad_frames(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    write_episode(tmp_path / "rowmajor", "episode_0", rng, column_major=False)
+    with pytest.raises(LogFormatError, match=r"episode_0.*pose.*not a rigid transform.*column-major"):
+        import_logs(tmp_path / "rowmajor", tmp_path / "x.h5")
+    write_episode(tmp_path / "mixed", "episode_0", rng)
+    write_episode(tmp_path / "mixed", "episode_1", rng, base_frame="world")
+    with pytest.raises(LogFormatError, match="different base frames"):
+        import_logs(tmp_path / "mixed", tmp_path / "y.h5")
