@@ -8,6 +8,7 @@ the same proposals, which is what makes a resumed or sharded run reproduce an un
 from __future__ import annotations
 
 import warnings
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -79,25 +80,25 @@ class MOTPESearch:
         self.space = space
         self.study = optuna.create_study(directions=["minimize", "minimize"], sampler=sampler)
         self._distribution = optuna.distributions.FloatDistribution(space.min_Npm, space.max_Npm, log=space.log)
-        self._pending: Any = None
+        self._pending: deque[Any] = deque()  # asked, not yet told; constant_liar spreads a batch
 
     def ask(self) -> np.ndarray:
-        if self._pending is not None:
-            raise RuntimeError("MOTPESearch.ask() called twice without tell()")
         names = self.space.param_names()
-        self._pending = self.study.ask({name: self._distribution for name in names})
-        return self.space.to_array(self._pending.params)
+        trial = self.study.ask({name: self._distribution for name in names})
+        self._pending.append(trial)
+        return self.space.to_array(trial.params)
 
     def tell(self, objectives: tuple[float, float] | None) -> None:
+        """Report the outcome of the oldest proposal not yet told (asks may run ahead, for batching)."""
         import optuna
 
-        if self._pending is None:
+        if not self._pending:
             raise RuntimeError("MOTPESearch.tell() called before ask()")
+        trial = self._pending.popleft()
         if objectives is None:
-            self.study.tell(self._pending, state=optuna.trial.TrialState.FAIL)
+            self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
         else:
-            self.study.tell(self._pending, [float(objectives[0]), float(objectives[1])])
-        self._pending = None
+            self.study.tell(trial, [float(objectives[0]), float(objectives[1])])
 
 
 def make_search(name: str, space: SearchSpace, seed: int, **options: Any) -> StiffnessSearch:
