@@ -76,17 +76,16 @@ def resolve_domain(domain: Any) -> "Any":
 def check_embodiment(name: str) -> None:
     """Fail early and clearly if the chosen embodiment cannot be built here."""
     try:
-        from dcm.sim.rollout import EMBODIMENTS
+        from dcm.sim.rollout import EMBODIMENTS, embodiment_class
     except ImportError as err:
         raise GenerationError(f"the simulator (dcm.sim.rollout) cannot be imported: {err}") from err
     if name not in EMBODIMENTS:
         hint = " (the panda embodiment is missing; run with embodiment=tool)" if name == "panda" else ""
         raise GenerationError(f"embodiment={name!r} is not available; known: {sorted(EMBODIMENTS)}{hint}")
-    if name == "panda":
-        try:
-            import dcm.sim.panda  # noqa: F401  (lazy in the registry; import it here to fail early)
-        except ImportError as err:
-            raise GenerationError(f"the panda embodiment cannot be loaded ({err}); run with embodiment=tool") from err
+    try:
+        embodiment_class(name)  # registry entries import lazily; import now to fail before spawning workers
+    except (ImportError, ValueError) as err:
+        raise GenerationError(f"the {name} embodiment cannot be loaded ({err}); run with embodiment=tool") from err
 
 
 # ----------------------------------------------------------------------------------------------- one demo
@@ -104,13 +103,14 @@ class DemoRunner:
         from dcm.sim.rollout import Simulator
 
         key = json.dumps(bowl, sort_keys=True)
-        if self._sim is None or key != self._sim_key or not hasattr(self._sim, "reseed"):
+        if self._sim is None or key != self._sim_key:  # one model per bowl; drop the old one to bound memory
             self._sim = Simulator(embodiment=self.settings["embodiment"], bowl=BowlSpec.from_dict(bowl),
                                   domain=resolve_domain(self.settings["domain"]),
                                   control_hz=self.settings["control_hz"], seed=seed)
             self._sim_key = key
-        else:
-            self._sim.reseed(seed)  # noise streams restart per demo: results independent of demo order
+        # The simulator draws its noise from (seed, hash of the inputs), so setting the demo's seed makes the
+        # results independent of which demos this worker ran before.
+        self._sim.seed = int(seed)
         return self._sim
 
     def run(self, job: DemoJob, job_fingerprint: str, on_trial: Callable[[], None] = lambda: None) -> Path:
