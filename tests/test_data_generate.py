@@ -1,0 +1,160 @@
+"""Dataset generation: the tiny preset, reproducibility across workers/shards, kill + resume, failed trials."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from dcm.data.generate import GenerationError, compose_config, generate
+from dcm.data.merge import merge_shards, part_trajectories, write_part
+from dcm.data.schema import FIELDS, load_dataset
+from dcm.data.search import MOTPESearch, RandomSearch, SearchSpace
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _all_arrays(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    with h5py.File(path, "r") as f:
+        return {name: {k: f["data"][name][k][()] for k in FIELDS} for name in f["data"]}
+
+
+def _masks(path: Path) -> dict[str, list[bytes]]:
+    with h5py.File(path, "r") as f:
+        return {s: f["mask"][s][()].tolist() for s in f["mask"]}
+
+
+def assert_same_data(a: Path, b: Path) -> None:
+    arrays_a, arrays_b = _all_arrays(a), _all_arrays(b)
+    assert sorted(arrays_a) == sorted(arrays_b)
+    for name in arrays_a:
+        for field in FIELDS:
+            np.testing.assert_array_equal(arrays_a[name][field], arrays_b[name][field], err_msg=f"{name}/{field}")
+    assert _masks(a) == _masks(b)
+
+
+def test_tiny_dataset(tiny_dataset_path: Path) -> None:
+    train = load_dataset(tiny_dataset_path, split="train", expect_control_hz=20.0)
+    assert train.horizon == 40 and len(train) == 9 and len(set(train.demo_ids)) == 3
+    assert train.arrays["x_demo"].shape == (9, 40, 6)
+    assert len(load_dataset(tiny_dataset_path, split="valid")) == 3
+    test = load_dataset(tiny_dataset_path, split="test")
+    assert len(test) == 3 and test.meta[0]["demo"]["family"] == "wavelike"
+    assert np.all(train.L_comp > 0) and np.all(np.isfinite(train.L_task))
+    meta = train.meta[0]
+    assert meta["embodiment"] == "tool" and meta["domain"]["name"] == "nominal" and "rim_radius_m" in meta["bowl"]
+    assert len(meta["phase_stiffness_Npm"]) == 3 and meta["phase_boundaries"][-1] == 40
+    # trials of one demo share the demo but differ in stiffness, hence in force
+    assert np.array_equal(train.arrays["x_demo"][0], train.arrays["x_demo"][1])
+    assert not np.array_equal(train.arrays["K"][0], train.arrays["K"][1])
+    assert "search:" in train.attrs["config"] and train.attrs["dcm_version"]
+
+
+def test_shards_merge_to_the_full_dataset(tiny_dataset_path: Path, tmp_path: Path) -> None:
+    out = tmp_path / "tiny.h5"
+    shards = []
+    for index in (1, 0):
+        cfg = compose_config("tiny", [f"out={out}", "workers=1", "progress=false", "shard.count=2",
+                                      f"shard.index={index}"])
+        shards.append(generate(cfg))
+    assert sorted(p.name for p in shards) == ["tiny.shard-0-of-2.h5", "tiny.shard-1-of-2.h5"]
+    with pytest.raises(ValueError, match="every shard"):
+        merge_shards(out, shards[:1])
+    merge_shards(out, shards)
+    assert_same_data(out, tiny_dataset_path)
+    np.testing.assert_allclose(load_dataset(out).stats["F_obs"]["mean"],
+                               load_dataset(tiny_dataset_path).stats["F_obs"]["mean"])
+
+
+def _run(args: list[str], **kwargs) -> subprocess.Popen:
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    return subprocess.Popen([sys.executable, "-m", "dcm.data.generate", *args], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs)
+
+
+def test_kill_and_resume_gives_identical_arrays(tiny_dataset_path: Path, tmp_path: Path) -> None:
+    out = tmp_path / "resumed.h5"
+    parts = tmp_path / "resumed.h5.parts"
+    args = ["dataset=tiny", f"out={out}", "progress=false", f"hydra.run.dir={tmp_path / 'hydra'}"]
+    proc = _run([*args, "workers=1"], start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not list(parts.glob("demo_*.npz")):
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+        assert time.monotonic() < deadline, "no part file appeared within 120 s"
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not out.exists()
+    n_done = len(list(parts.glob("demo_*.npz")))
+    assert 1 <= n_done < 5
+    resumed = _run([*args, "workers=2"])
+    _, stderr = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, stderr[-3000:]
+    assert "resuming:" in stderr
+    assert_same_data(out, tiny_dataset_path)  # also: 2 workers reproduce the 1-worker run
+    assert not parts.exists()
+
+
+def test_stale_parts_are_refused(tmp_path: Path) -> None:
+    out = tmp_path / "t.h5"
+    base = [f"out={out}", "workers=1", "progress=false", "keep_parts=true", "shard.count=5", "shard.index=4"]
+    generate(compose_config("tiny", base))
+    with pytest.raises(GenerationError, match="different settings"):
+        generate(compose_config("tiny", [*base, "seed=1"]))
+
+
+def test_failed_trials_are_kept_but_masked(tmp_path: Path) -> None:
+    horizon, n = 8, 2
+    rng = np.random.default_rng(0)
+    arrays = {k: rng.normal(size=(n, horizon, 6)).astype(np.float32) for k in ("x_attr", "K", "x_obs", "F_obs")}
+    arrays["K"] = np.abs(arrays["K"]) + 100
+    arrays["x_obs"][1, 5:] = np.nan  # a diverged rollout may carry garbage
+    arrays.update(contact=np.ones((n, horizon), np.uint8), L_task=np.array([0.5, np.inf]), L_comp=np.array([1.0, 1.1]),
+                  failed=np.array([False, True]), failure_reason=np.array(["", "contact force 412 N > 300 N"]),
+                  phase_stiffness_Npm=np.full((n, 1, 3), 500.0), x_demo=np.zeros((horizon, 6), np.float32),
+                  F_demo=np.zeros((horizon, 6), np.float32), phase_boundaries=np.array([0, horizon]))
+    job = {"index": 0, "skill": "spiral", "n_trials": n, "trial_splits": ["train", "train"], "seed": 1,
+           "first_traj": 0}
+    meta = {"job": job, "demo": {"family": "spiral", "bowl": {}}, "embodiment": "tool", "domain": {"name": "nominal"},
+            "search": "random"}
+    path = write_part(tmp_path, 0, arrays, meta)
+    from dcm.data.merge import assemble
+
+    assemble([path], tmp_path / "f.h5", {"control_hz": 20.0})
+    data = load_dataset(tmp_path / "f.h5", split="train")
+    assert data.names == ["traj_000000"]
+    everything = load_dataset(tmp_path / "f.h5", include_failed=True)
+    assert everything.meta[1]["failed"] and "412 N" in everything.meta[1]["failure_reason"]
+    assert np.all(np.isfinite(everything.arrays["x_obs"]))
+    assert len(part_trajectories(arrays, meta)) == 2
+
+
+def test_search_strategies_are_seeded() -> None:
+    space = SearchSpace(n_phases=2, min_Npm=100, max_Npm=1500)
+
+    def proposals(search) -> np.ndarray:
+        out = []
+        for i in range(8):
+            k = search.ask()
+            search.tell(None if i == 3 else (float(k.sum()) / 1e3, float(k.mean()) / 1e3))
+            out.append(k)
+        return np.array(out)
+
+    a = proposals(MOTPESearch(space, seed=5, n_startup_trials=3))
+    np.testing.assert_array_equal(a, proposals(MOTPESearch(space, seed=5, n_startup_trials=3)))
+    assert a.shape == (8, 2, 3) and a.min() >= 100 and a.max() <= 1500
+    assert not np.array_equal(a, proposals(MOTPESearch(space, seed=6, n_startup_trials=3)))
+    r = proposals(RandomSearch(space, seed=5))
+    np.testing.assert_array_equal(r, proposals(RandomSearch(space, seed=5)))
+
+
+def test_missing_embodiment_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(GenerationError, match="embodiment='nope'"):
+        generate(compose_config("tiny", [f"out={tmp_path / 'x.h5'}", "embodiment=nope", "progress=false"]))
