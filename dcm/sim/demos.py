@@ -58,6 +58,10 @@ class PathOutsideBowlError(DemoSpecError):
     """A demo path leaves the usable bowl surface."""
 
 
+class WaypointOutsideBowlError(WaypointFileError, PathOutsideBowlError):
+    """A waypoint row lies outside the bowl's rim."""
+
+
 def _smooth_progress(s: np.ndarray) -> np.ndarray:
     """Cycloidal 0 -> 1 progress with zero velocity at both ends (no jerk at start and stop)."""
     s = np.clip(s, 0.0, 1.0)
@@ -275,7 +279,7 @@ class DemoSpec:
             outside = ~np.asarray(self.bowl.contains(table[:, 1], table[:, 2]))
             if outside.any():
                 i = int(np.argmax(outside))
-                raise PathOutsideBowlError(
+                raise WaypointOutsideBowlError(
                     f"{self.waypoints}, row {i + 2}: (x, y) = ({table[i, 1]:g}, {table[i, 2]:g}) m lies outside "
                     f"the bowl (rim radius {rim:g} m, shape {self.bowl.shape})"
                 )
