@@ -275,7 +275,9 @@ def generate(cfg: Any) -> Path:
     dataset_cfg = OmegaConf.to_container(cfg.dataset, resolve=True)
     demo_cfg = OmegaConf.to_container(cfg.demo, resolve=True)
     n_trials = int(cfg.n_trials) if cfg.n_trials is not None else None
-    all_jobs = plan_demos(dataset_cfg, int(cfg.seed), n_trials, demo_cfg if demo_cfg.get("waypoints") else None)
+    only_skills = list(cfg.skills) if cfg.get("skills") is not None else None
+    all_jobs = plan_demos(dataset_cfg, int(cfg.seed), n_trials, demo_cfg if demo_cfg.get("waypoints") else None,
+                          only_skills)
     jobs = [job for job in all_jobs if job.index % shard_count == shard_index]
     if not jobs:
         raise GenerationError(f"shard {shard_index} of {shard_count} holds no demos (the plan has {len(all_jobs)})")

@@ -12,7 +12,7 @@ import itertools
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -80,13 +80,14 @@ def expand_skill(skill: Mapping[str, Any], defaults: Mapping[str, Any], where: s
 
 
 def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: int | None = None,
-               waypoints: Mapping[str, Any] | None = None) -> list[DemoJob]:
+               waypoints: Mapping[str, Any] | None = None, only_skills: Sequence[str] | None = None) -> list[DemoJob]:
     """Every demo of a preset, in a fixed order, with its splits, trial count and seed.
 
     Splits: a skill group's ``split`` is ``train``, ``valid``, ``test`` or ``trainval``. For ``trainval`` a
     seeded ``valid_fraction`` goes to valid, either whole skills (``valid_by: skill``, the default; the
     model is checked on unseen skills) or single trials of every skill (``valid_by: trial``; for presets
-    with very few skills).
+    with very few skills). ``only_skills`` keeps just the named skill groups (e.g. the train set alone);
+    demo indices and seeds are those of the full plan, so the kept demos are identical to the full run's.
     """
     defaults = {"duration_s": dataset.get("duration_s", 8.0), "bowl": dict(dataset.get("bowl", {}))}
     groups: list[tuple[str, str, int, list[dict[str, Any]]]] = []
@@ -108,6 +109,9 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
             if n < 1:
                 raise PresetError(f"{where}.n_trials = {n} must be >= 1")
             groups.append((name, split, n, expand_skill(skill, defaults, where)))
+        known = {g[0] for g in groups}
+        if only_skills is not None and not set(only_skills) <= known:
+            raise PresetError(f"skills={list(only_skills)}: unknown skill group(s); the preset has {sorted(known)}")
 
     valid_fraction = float(dataset.get("valid_fraction", 0.1))
     valid_by = str(dataset.get("valid_by", "skill"))
@@ -135,6 +139,8 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
             jobs.append(DemoJob(index=index, skill=name, spec=spec, n_trials=n_trials, trial_splits=trial_splits,
                                 seed=derive_seed(base_seed, index), first_traj=next_traj))
             next_traj += n_trials
+    if only_skills is not None:
+        jobs = [job for job in jobs if job.skill in only_skills]
     return jobs
 
 
