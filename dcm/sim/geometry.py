@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
+import math
 
 import numpy as np
 
@@ -145,6 +146,17 @@ class BowlSpec:
         else:
             z = self.depth_m * np.minimum(self._rho2(x, y), 1.0)
         return float(z) if z.ndim == 0 else z
+
+    def height_scalar(self, x: float, y: float) -> float:
+        """``height`` for one point without numpy overhead (called every control step)."""
+        if self.shape == "flat":
+            return 0.0
+        if self.shape == "spherical_cap":
+            r2 = min(x * x + y * y, self.rim_radius_m**2)
+            big_r = self.sphere_radius_m
+            return big_r - math.sqrt(big_r * big_r - r2)
+        a, b = self.semi_axes_m
+        return self.depth_m * min((x / a) ** 2 + (y / b) ** 2, 1.0)
 
     def gradient(self, x: Any, y: Any) -> tuple[Any, Any]:
         """(dz/dx, dz/dy) of the surface; zero on the lip."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import zlib
 from dataclasses import dataclass, field
 from typing import Any
@@ -200,8 +201,7 @@ class Simulator:
         if abs(demo.dt - self.dt) > 1e-9:
             raise SimulatorError(f"demo dt = {demo.dt} s does not match the simulator's control dt = {self.dt} s")
         self.limits.check(stiffness, where="stiffness")
-        inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
-        x_attr = attractor_from_demo(x_demo, force_demo, stiffness, self.dt, inertia=inertia)
+        x_attr = self.attractor(demo, stiffness)
         applied = filter_schedule(stiffness, self.dt, tau_s=self.stiffness_tau_s)
         start = demo.start_pose if demo.start_pose is not None else demo.spec.start_pose(self.control_hz)
         emb = self.embodiment_for(demo.spec.bowl)
@@ -225,6 +225,26 @@ class Simulator:
             failure_reason=run.reason,
             stiffness_applied=applied,
             failed_step=run.failed_step,
+        )
+
+    def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
+        """The attractor (H, 6) this simulator commands for ``demo`` under schedule ``stiffness`` (H, 6).
+
+        Public so that a force model can be given exactly the attractor a rollout would use.
+        """
+        inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
+        return attractor_from_demo(demo.x_demo, demo.force_demo, stiffness, self.dt, inertia=inertia)
+
+    def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
+        """The attractor (H, 6) a rollout of ``stiffness`` uses: the paper's equation with the commanded K
+        and the embodiment's nominal Cartesian inertia. Robot-free tuning calls this to build model inputs."""
+        inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
+        return attractor_from_demo(
+            np.asarray(demo.x_demo, dtype=np.float64),
+            np.asarray(demo.force_demo, dtype=np.float64),
+            np.asarray(stiffness, dtype=np.float64),
+            self.dt,
+            inertia=inertia,
         )
 
     def constant_stiffness(self, demo: Demo, translational_Npm: Any, rotational: float = 20.0) -> np.ndarray:
@@ -261,7 +281,9 @@ class Simulator:
         contact = np.zeros(horizon, dtype=bool)
         latency = int(self.domain.latency_steps)
         bounds = self.bounds
-        data = emb.data
+        # Live views of MuJoCo's warning counters (a bad state makes MuJoCo reset the data and count).
+        warnings = [(emb.data.warning[w], mujoco.mjtWarning(w).name) for w in _BAD_STATE_WARNINGS]
+        half_extent = bowl.half_extent_m
         failed, reason, failed_step = False, "", -1
         for k in range(horizon):
             j = k - latency
@@ -272,7 +294,7 @@ class Simulator:
             x_obs[k], v_obs[k] = result.pose, result.velocity
             f_contact[k], f_sensor[k] = result.force_contact, result.force_sensor
             contact[k] = result.in_contact
-            reason = self._divergence(result, data, bowl, bounds)
+            reason = self._divergence(result, warnings, bowl, half_extent, bounds)
             if reason:
                 failed, failed_step = True, k
                 reason = f"step {k} (t = {k * self.dt:.2f} s): {reason}"
@@ -288,21 +310,26 @@ class Simulator:
         return _Execution(x_obs, v_obs, force_obs, force_sensor, contact, failed, reason, failed_step)
 
     @staticmethod
-    def _divergence(result: Any, data: mujoco.MjData, bowl: BowlSpec, bounds: DivergenceBounds) -> str:
-        for warning in _BAD_STATE_WARNINGS:
-            if data.warning[warning].number > 0:
-                return f"MuJoCo warning {mujoco.mjtWarning(warning).name}"
-        values = (result.pose, result.velocity, result.force_contact)
-        if not all(np.all(np.isfinite(v)) for v in values):
+    def _divergence(
+        result: Any, warnings: list[tuple[Any, str]], bowl: BowlSpec, half_extent: tuple[float, float],
+        bounds: DivergenceBounds,
+    ) -> str:
+        for stat, name in warnings:
+            if stat.number > 0:
+                return f"MuJoCo warning {name}"
+        # One finite check over everything (a NaN/inf anywhere makes the sum non-finite).
+        total = float(result.pose.sum() + result.velocity.sum() + result.force_contact.sum())
+        if not math.isfinite(total):
             return "non-finite pose, velocity or force"
-        force = float(np.linalg.norm(result.force_contact[:3]))
+        fx, fy, fz = result.force_contact[:3]
+        force = math.sqrt(fx * fx + fy * fy + fz * fz)
         if force > bounds.max_force_N:
             return f"contact force {force:.1f} N exceeds {bounds.max_force_N:g} N"
         x, y, z = result.pose[:3]
-        hx, hy = bowl.half_extent_m
+        hx, hy = half_extent
         if abs(x) > hx or abs(y) > hy:
             return f"tool at (x, y) = ({x:.3f}, {y:.3f}) m left the bowl's heightfield"
-        gap = z - bowl.height(x, y)
+        gap = z - bowl.height_scalar(x, y)
         if gap > bounds.max_above_surface_m:
             return f"tool {gap:.3f} m above the surface (limit {bounds.max_above_surface_m:g} m)"
         if gap < -bounds.max_below_surface_m:

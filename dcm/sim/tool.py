@@ -217,8 +217,10 @@ class ToolEmbodiment:
         force_contact = self.tip_mass_kg * (accel_mean + gravity) - f_sensor
         # Torque balance about the sensor (the tip mass sits at the sphere centre, the contact force acts on
         # the sphere): re-expressed about the tip centre, which lies STEM_LENGTH_M below the sensor.
-        lever = np.array([0.0, 0.0, STEM_LENGTH_M])
-        torque_contact = -t_sensor + np.cross(lever, force_contact)
+        # (l z) x F = l (-F_y, F_x, 0), written out: np.cross costs more than the rest of this method.
+        torque_contact = -t_sensor
+        torque_contact[0] -= STEM_LENGTH_M * force_contact[1]
+        torque_contact[1] += STEM_LENGTH_M * force_contact[0]
         pose = np.zeros(6)
         pose[:3] = data.qpos[:3]
         velocity = np.zeros(6)
