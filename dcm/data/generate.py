@@ -322,11 +322,15 @@ def compose_config(preset: str, overrides: Sequence[str] = ()) -> Any:
     """Compose ``conf/generate.yaml`` with ``dataset=<preset>`` outside of a Hydra app."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
+    from hydra.initialize import get_gh_backup, restore_gh_from_backup
 
-    if GlobalHydra.instance().is_initialized():
-        GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        return compose(config_name="generate", overrides=[f"dataset={preset}", *overrides])
+    outer = get_gh_backup()  # e.g. train.py's own Hydra app: put it back afterwards
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+            return compose(config_name="generate", overrides=[f"dataset={preset}", *overrides])
+    finally:
+        restore_gh_from_backup(outer)
 
 
 def ensure_dataset(preset: str, path: str | Path | None = None, overrides: Sequence[str] = ()) -> Path:
