@@ -67,9 +67,10 @@ def test_static_press_gives_kz_times_depth(panda: PandaEmbodiment, kz_Npm: float
     """A static attractor d below the plate settles at F_z = Kz (d - p), p = the tip's penetration.
 
     The contact is soft (solimp dmin = 0, width 5 mm) so the tip sinks p into the plate and the spring is
-    shortened by p: F_z = Kz (d - p) must hold to 2% (what remains is the arm's slow settling through its
-    heavy, under-damped modes: D = 2 sqrt(K) is unit-mass damping, the Panda's tip feels ~10 kg). Against the
-    ideal Kz d the gap is Kz p, and p < 1.5 mm bounds it (about 1 N at 1000 N/m, as the reference found).
+    shortened by p: F_z = Kz (d - p) must hold to 0.5% (measured: 1e-5 after 3 s; the margin covers the
+    arm's slow settling through its heavy, under-damped modes, since D = 2 sqrt(K) is unit-mass damping and
+    the Panda's tip feels ~10 kg). Against the ideal Kz d the gap is Kz p, bounded by p < 1.5 mm (about 1 N at
+    1000 N/m, as the reference found).
     """
     depth_m = 0.01
     stiffness = np.array([800.0, 800.0, kz_Npm, 20.0, 20.0, 20.0])
@@ -79,7 +80,7 @@ def test_static_press_gives_kz_times_depth(panda: PandaEmbodiment, kz_Npm: float
     penetration_m = -np.mean([r.pose[2] for r in tail])
     assert all(r.in_contact for r in tail)
     assert 0.0 < penetration_m < 1.5e-3
-    assert force_z == pytest.approx(kz_Npm * (depth_m - penetration_m), rel=0.02)
+    assert force_z == pytest.approx(kz_Npm * (depth_m - penetration_m), rel=0.005)
     assert force_z == pytest.approx(kz_Npm * depth_m, abs=kz_Npm * penetration_m + 0.1)
     assert np.allclose(tail[-1].force_contact[:2], 0.0, atol=0.02 * force_z)
     # The wrench estimated from the wrist sensor (tool weight removed) equals MuJoCo's contact forces.

@@ -1,0 +1,182 @@
+"""Simulator throughput: control steps/s of each embodiment beside raw physics and robosuite's stock Panda.
+
+    MUJOCO_GL=egl python bench/sim_throughput.py [--rollouts 8] [--repeats 3] [--robosuite-steps 150]
+
+For each embodiment (``tool``, ``panda``) it records a spiral demo on the default bowl and times
+``Simulator.rollout`` (control steps/s at 20 Hz, 25 physics substeps of 2 ms). Beside it, the raw ``mj_step``
+rate of the *same* model: every control-period state of a rollout is restored and only
+``mj_step(model, data, nstep=25)`` is timed, so the physics bound on the control rate is
+mj_steps/s / substeps. Then robosuite's stock ``Wipe`` env (Panda + OSC, control_freq=20) is stepped with zero
+and with random actions in the same process.
+
+Targets: ``tool`` >= 50% of its raw mj_step-bound control rate; ``panda`` >= 5x robosuite's OSC env.
+Each figure is the median over ``--repeats`` repeats, measured in process CPU time (steadier when other jobs
+share the machine) and in wall-clock time; the ratios use matching clocks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from dcm.sim import BowlSpec, DemoSpec, Simulator  # noqa: E402
+
+
+class Clock:
+    """Wall-clock and process CPU time together: on a shared machine CPU time is the steadier cost measure."""
+
+    def __init__(self) -> None:
+        self.wall = 0.0
+        self.cpu = 0.0
+
+    def __enter__(self) -> "Clock":
+        self._w, self._c = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.wall += time.perf_counter() - self._w
+        self.cpu += time.process_time() - self._c
+
+
+def bench_embodiment(name: str, rollouts: int, repeats: int) -> dict[str, float]:
+    """Rollout control rate and the raw mj_step-bound control rate of the same model and states.
+
+    Rollouts and the raw replay alternate within each repeat so both see the same machine load.
+    """
+    t0 = time.perf_counter()
+    sim = Simulator(embodiment=name, bowl=BowlSpec())
+    build_s = time.perf_counter() - t0
+    demo = sim.record_demo(DemoSpec(family="spiral", bowl=BowlSpec()))
+    horizon = demo.horizon
+    schedules = [sim.constant_stiffness(demo, k) for k in np.linspace(300.0, 1500.0, rollouts)]
+
+    # The state at every control period of one rollout, re-created by stepping the embodiment as rollout does.
+    emb = sim.embodiment
+    model, data = emb.model, emb.data
+    n_sub = int(round(sim.dt / model.opt.timestep))
+    trial = sim.rollout(demo, schedules[len(schedules) // 2])
+    emb.reset(np.asarray(demo.start_pose, dtype=float))
+    kind = mujoco.mjtState.mjSTATE_INTEGRATION
+    states, ncon = [], []
+    for k in range(horizon):
+        states.append(np.empty(mujoco.mj_stateSize(model, kind)))
+        mujoco.mj_getState(model, data, states[-1], kind)
+        emb.step(trial.x_attr[k], trial.stiffness_applied[k])
+        ncon.append(data.ncon)
+
+    rows = []
+    for _ in range(repeats):
+        roll = Clock()
+        with roll:
+            for stiffness in schedules:
+                if sim.rollout(demo, stiffness).failed:
+                    raise RuntimeError(f"{name}: a benchmark rollout failed")
+        raw = Clock()
+        for state in states:
+            mujoco.mj_setState(model, data, state, kind)
+            with raw:
+                mujoco.mj_step(model, data, nstep=n_sub)
+        steps = rollouts * horizon
+        rows.append((steps / roll.cpu, steps / roll.wall, horizon / raw.cpu, horizon / raw.wall))
+    med = [statistics.median(col) for col in zip(*rows)]
+    ratios = [r[0] / r[2] for r in rows]
+    return {
+        "build_s": build_s,
+        "rate": med[0],
+        "rate_wall": med[1],
+        "raw": med[2],
+        "raw_wall": med[3],
+        "ratio": statistics.median(ratios),
+        "mj_steps_per_s": med[2] * n_sub,
+        "substeps": n_sub,
+        "ncon_mean": float(np.mean(ncon)),
+    }
+
+
+def bench_robosuite(steps: int, repeats: int) -> dict[str, float]:
+    """robosuite's stock Panda OSC Wipe env stepped with zero and with random actions."""
+    import robosuite
+
+    t0 = time.perf_counter()
+    env = robosuite.make(
+        "Wipe",
+        robots="Panda",
+        has_renderer=False,
+        has_offscreen_renderer=False,
+        use_camera_obs=False,
+        control_freq=20,
+    )
+    env.reset()
+    build_s = time.perf_counter() - t0
+    low, high = env.action_spec
+    rng = np.random.default_rng(0)
+    out: dict[str, float] = {"build_s": build_s}
+    for label, make_action in (
+        ("zero", lambda: np.zeros_like(low)),
+        ("random", lambda: rng.uniform(low, high)),
+    ):
+        cpu, wall = [], []
+        for _ in range(repeats):
+            env.reset()
+            clock = Clock()
+            with clock:
+                for _ in range(steps):
+                    _, _, done, _ = env.step(make_action())
+                    if done:
+                        env.reset()
+            cpu.append(steps / clock.cpu)
+            wall.append(steps / clock.wall)
+        out[label], out[label + "_wall"] = statistics.median(cpu), statistics.median(wall)
+    env.close()
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rollouts", type=int, default=8, help="rollouts per timed repeat (H=160 each)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed repeats; the median is reported")
+    parser.add_argument("--robosuite-steps", type=int, default=150, help="env steps per robosuite repeat")
+    parser.add_argument("--skip-robosuite", action="store_true")
+    args = parser.parse_args()
+
+    t_start = time.perf_counter()
+    print(f"mujoco {mujoco.__version__}, {os.cpu_count()} CPUs; shared machine: figures are noisy.")
+    results = {name: bench_embodiment(name, args.rollouts, args.repeats) for name in ("tool", "panda")}
+    rs = None if args.skip_robosuite else bench_robosuite(args.robosuite_steps, args.repeats)
+
+    print()
+    print("control steps/s (median of repeats; by process CPU time, and by wall clock)")
+    print(f"{'setup':46s} {'cpu':>8s} {'wall':>8s} {'build s':>8s}")
+    for name, r in results.items():
+        print(f"{name + ' Simulator.rollout':46s} {r['rate']:8.0f} {r['rate_wall']:8.0f} {r['build_s']:8.2f}")
+        label = f"{name} raw mj_step bound ({r['mj_steps_per_s']:.0f} steps/s / {r['substeps']})"
+        print(f"{label:46s} {r['raw']:8.0f} {r['raw_wall']:8.0f}")
+    if rs is not None:
+        print(f"{'robosuite Wipe Panda OSC, zero actions':46s} {rs['zero']:8.0f} {rs['zero_wall']:8.0f} {rs['build_s']:8.2f}")
+        print(f"{'robosuite Wipe Panda OSC, random actions':46s} {rs['random']:8.0f} {rs['random_wall']:8.0f}")
+
+    print()
+    for name, r in results.items():
+        print(f"{name}: {r['ncon_mean']:.1f} contacts per physics step on average (sphere on heightfield facets)")
+    tool = results["tool"]
+    print(f"tool:  {tool['ratio']:.0%} of its raw mj_step-bound control rate (target >= 50%): "
+          f"{'PASS' if tool['ratio'] >= 0.5 else 'MISS'}")
+    print(f"panda: {results['panda']['ratio']:.0%} of its raw mj_step-bound control rate (for reference)")
+    if rs is not None:
+        for clock, key in (("cpu", ""), ("wall", "_wall")):
+            osc = max(rs["zero" + key], rs["random" + key])  # the faster robosuite figure: the harder comparison
+            ratio = results["panda"]["rate" + key] / osc
+            print(f"panda: {ratio:.1f}x robosuite's OSC Wipe env ({osc:.0f} steps/s, {clock}) (target >= 5x): "
+                  f"{'PASS' if ratio >= 5.0 else 'MISS'}")
+    print(f"\ntotal benchmark time {time.perf_counter() - t_start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
