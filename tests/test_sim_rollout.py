@@ -135,6 +135,14 @@ def test_realistic_domain_shifts_the_forces(demo: Demo) -> None:
     assert shifted.force_obs[0, 2] == pytest.approx(DomainSpec.preset("realistic").ft_bias[2], abs=1.5)
 
 
+def test_missing_embodiment_module_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    import dcm.sim.rollout as rollout
+
+    monkeypatch.setitem(rollout.EMBODIMENTS, "panda", "dcm.sim.no_such_module:PandaEmbodiment")
+    with pytest.raises(SimulatorError, match="embodiment 'panda' is unavailable.*embodiment='tool'"):
+        Simulator("panda", BOWL)
+
+
 def test_bad_simulator_arguments() -> None:
     with pytest.raises(SimulatorError, match="unknown embodiment 'ur5'"):
         Simulator("ur5", BOWL)

@@ -20,6 +20,8 @@ _LAZY = {
     "DemoSpec": "dcm.sim.demos",
     "DemoSpecError": "dcm.sim.demos",
     "WaypointFileError": "dcm.sim.demos",
+    "PathOutsideBowlError": "dcm.sim.demos",
+    "DivergenceBounds": "dcm.sim.rollout",
     "load_waypoints_csv": "dcm.sim.demos",
     "Simulator": "dcm.sim.rollout",
     "Trial": "dcm.sim.rollout",

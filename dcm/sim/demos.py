@@ -160,7 +160,8 @@ class DemoSpec:
     approach_s: float = 1.0
     hover_m: float = 0.01
     name: str = ""
-    source: str = "DemoSpec"  # where it came from, used in error messages; not serialised
+    # Where the spec came from, used in error messages; not serialised and not compared.
+    source: str = field(default="DemoSpec", compare=False, repr=False)
 
     def __post_init__(self) -> None:
         self.bowl = _bowl_from(self.bowl, self.source)
