@@ -16,9 +16,9 @@ finds ground instead of falling off the heightfield.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
-from typing import Any
 import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
 
 import numpy as np
 

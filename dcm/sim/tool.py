@@ -11,6 +11,10 @@ control period, so the per-substep Python work is one ``mj_step`` and one vector
 wrench). The ``implicitfast`` integrator treats the actuator damping implicitly, which keeps stiff
 settings stable at 2 ms.
 
+Speed (2 cores, shared): ~850 control steps/s at 20 Hz on an idle core, 75-95% of the raw
+``mj_step(nstep=25)`` rate of the same model (the contact-rich heightfield step dominates); under heavy
+load both drop together (~350 vs ~450/s).
+
 Frames: joint positions are the tool-tip point (TCP, the lowest point of the sphere) in the bowl frame,
 because the bowl origin sits at the world origin here.
 """
