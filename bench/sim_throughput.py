@@ -1,6 +1,6 @@
 """Simulator throughput: control steps/s of each embodiment beside raw physics and robosuite's stock Panda.
 
-    MUJOCO_GL=egl python bench/sim_throughput.py [--rollouts 8] [--repeats 3] [--robosuite-steps 150]
+    MUJOCO_GL=egl python bench/sim_throughput.py [--rollouts 8] [--repeats 3] [--robosuite-steps 150] [--variants]
 
 For each embodiment (``tool``, ``panda``) it records a spiral demo on the default bowl and times
 ``Simulator.rollout`` (control steps/s at 20 Hz, 25 physics substeps of 2 ms). Beside it, the raw ``mj_step``
@@ -100,6 +100,44 @@ def bench_embodiment(name: str, rollouts: int, repeats: int) -> dict[str, float]
     }
 
 
+def bench_panda_variants(repeats: int) -> list[tuple[str, float, float]]:
+    """The panda's control-law variants: speed and force agreement with the per-physics-step Python controller.
+
+    Returns (label, control steps/s by CPU time, contact-force RMSE [N] against the Python reference).
+    """
+    from dcm.control import task_loss
+    from dcm.sim import DomainSpec
+    from dcm.sim.panda import PandaEmbodiment
+
+    bowl = BowlSpec()
+    sim = Simulator(embodiment="panda", bowl=bowl)
+    demo = sim.record_demo(DemoSpec(family="spiral", bowl=bowl))
+    schedules = [sim.constant_stiffness(demo, k) for k in (300.0, 800.0, 1500.0)]
+    variants = {
+        "actuator, slow terms per period (default)": {},
+        "actuator, slow terms per physics step": {"slow_terms": "substep"},
+        "python law per physics step, slow per period": {"controller": "python"},
+        "python law + slow terms per physics step (ref)": {"controller": "python", "slow_terms": "substep"},
+    }
+    forces, rates = {}, {}
+    key = next(iter(sim._embodiments))
+    for label, kwargs in variants.items():
+        sim._embodiments[key] = PandaEmbodiment(bowl, DomainSpec(), visual=False, **kwargs)
+        cpu = []
+        for _ in range(repeats):
+            clock = Clock()
+            with clock:
+                trials = [sim.rollout(demo, k) for k in schedules]
+            cpu.append(len(schedules) * demo.horizon / clock.cpu)
+        forces[label] = [t.force_obs for t in trials]
+        rates[label] = statistics.median(cpu)
+    ref = forces["python law + slow terms per physics step (ref)"]
+    return [
+        (label, rates[label], max(float(task_loss(a, b)) for a, b in zip(forces[label], ref)))
+        for label in variants
+    ]
+
+
 def bench_robosuite(steps: int, repeats: int) -> dict[str, float]:
     """robosuite's stock Panda OSC Wipe env stepped with zero and with random actions."""
     import robosuite
@@ -144,6 +182,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="timed repeats; the median is reported")
     parser.add_argument("--robosuite-steps", type=int, default=150, help="env steps per robosuite repeat")
     parser.add_argument("--skip-robosuite", action="store_true")
+    parser.add_argument("--variants", action="store_true", help="also time the panda's control-law variants")
     args = parser.parse_args()
 
     t_start = time.perf_counter()
@@ -175,6 +214,11 @@ def main() -> None:
             ratio = results["panda"]["rate" + key] / osc
             print(f"panda: {ratio:.1f}x robosuite's OSC Wipe env ({osc:.0f} steps/s, {clock}) (target >= 5x): "
                   f"{'PASS' if ratio >= 5.0 else 'MISS'}")
+    if args.variants:
+        print("\npanda control-law variants (spiral demo, K = 300/800/1500 N/m)")
+        print(f"{'variant':50s} {'cpu steps/s':>11s} {'max force RMSE vs ref [N]':>26s}")
+        for label, rate, rmse in bench_panda_variants(args.repeats):
+            print(f"{label:50s} {rate:11.0f} {rmse:26.3f}")
     print(f"\ntotal benchmark time {time.perf_counter() - t_start:.0f} s")
 
 

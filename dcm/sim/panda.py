@@ -17,7 +17,13 @@ with ``K`` the diagonal Cartesian stiffness (N/m, N·m/rad) and ``D = 2 sqrt(K)`
   *configured* (nominal) mass, so a heavier tool in the shifted domain sags onto the surface as an unmodelled
   payload does on a real arm.
 * Coriolis/centrifugal and the nullspace posture torque vary slowly at wiping speeds: they are computed once
-  per control period and held (``qfrc_applied``). ``bench``/tests measure that this is stable.
+  per control period and held (``qfrc_applied``).
+
+Two reference variants exist only to validate that choice (``controller="python"`` evaluates the whole law in
+Python at every physics step, as franka_ros does at 1 kHz; ``slow_terms="substep"`` refreshes Coriolis and
+nullspace every physics step). Measured on a spiral demo at 300-1500 N/m: the default differs from the
+per-step Python controller by 0.06-0.14 N RMS in contact force (L_task there: 1.5-2.3 N) and runs ~2.5x
+faster (``python bench/sim_throughput.py --variants``).
 
 Frames: the pose is the TCP (the far end of the sphere tip) in the bowl frame; its rotation vector is relative
 to "tool pointing straight down" in bowl axes. ``force_contact`` is the wrench on the tool from the bowl,
@@ -108,6 +114,8 @@ class PandaEmbodiment:
         nullspace_stiffness: float = NULLSPACE_STIFFNESS_NMPRAD,
         coriolis: bool = True,
         visual: bool = True,
+        controller: str = "actuator",
+        slow_terms: str = "period",
     ) -> None:
         n_sub = control_dt / physics_dt
         if physics_dt <= 0 or abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
@@ -123,6 +131,13 @@ class PandaEmbodiment:
         self.nullspace_stiffness = float(nullspace_stiffness)
         self.nullspace_damping = 2.0 * np.sqrt(self.nullspace_stiffness)
         self.coriolis = coriolis
+        if controller not in ("actuator", "python"):
+            raise PandaError(f"controller = {controller!r}; expected 'actuator' or 'python'")
+        if slow_terms not in ("period", "substep"):
+            raise PandaError(f"slow_terms = {slow_terms!r}; expected 'period' or 'substep'")
+        self.controller = controller
+        self.slow_terms = slow_terms
+        self._held_slow = np.zeros(7)
 
         # The controller's model of the tool has the nominal mass; the simulated tool may be heavier.
         self.tool_mass_kg = self.tool.mass_kg * self.domain.tool_mass_scale
@@ -256,6 +271,8 @@ class PandaEmbodiment:
         k = np.asarray(stiffness, dtype=np.float64)
         if k.shape != (6,) or not math.isfinite(k.sum()) or k.min() < 0:
             raise PandaError(f"stiffness must be 6 finite non-negative numbers, got {k!r}")
+        if self.controller == "python":  # the reference controller computes the law itself
+            k = np.zeros(6)
         self._gain[:, 0] = k
         self._bias[:, 1] = -k
         self._bias[:, 2] = -damping_from_stiffness(k)
@@ -291,7 +308,28 @@ class PandaEmbodiment:
             posture = self.nullspace_stiffness * (self._q_nullspace - d.qpos[self._qadr])
             posture -= self.nullspace_damping * d.qvel[:7]
             tau += posture - j.T @ np.linalg.solve(jjt, j @ posture)
+        self._held_slow = tau
         d.qfrc_applied[:7] = tau
+
+    def _python_impedance(self, stiffness: np.ndarray, damping: np.ndarray) -> None:
+        """Reference controller: tau = J^T (K e - D J qdot) evaluated in Python, clamped to the joint limits.
+
+        Adds to ``qfrc_applied`` on top of the slow terms; used only to validate the in-engine actuators.
+        """
+        m, d = self.model, self.data
+        jac = self._jac
+        mujoco.mj_jacSite(m, d, jac[:3], jac[3:], self._tcp)
+        j = jac[:, :7]
+        err = np.empty(6)
+        err[:3] = d.mocap_pos[self._mocap_pos] - d.site_xpos[self._tcp]
+        site_quat, neg, diff = np.zeros(4), np.zeros(4), np.zeros(4)
+        mujoco.mju_mat2Quat(site_quat, d.site_xmat[self._tcp])
+        mujoco.mju_negQuat(neg, site_quat)
+        mujoco.mju_mulQuat(diff, d.mocap_quat[self._mocap_rot], neg)
+        mujoco.mju_quat2Vel(err[3:], diff, 1.0)
+        wrench = stiffness * err - damping * (j @ d.qvel[:7])
+        tau = np.clip(j.T @ wrench, -pa.TORQUE_LIMITS_NM, pa.TORQUE_LIMITS_NM)
+        d.qfrc_applied[:7] = tau + self._held_slow
 
     def reset(self, pose: np.ndarray) -> None:
         """Arm at rest with the TCP at ``pose`` (bowl frame) and the attractor there; nullspace target = this q."""
@@ -322,13 +360,28 @@ class PandaEmbodiment:
         sensor = d.sensordata[self._ft_slice]
         xmat = d.site_xmat[self._ft]
         contact = False
-        step = mujoco.mj_step
-        for _ in range(self.n_substeps):
-            step(m, d)
-            acc += sensor
-            racc += xmat
-            if d.ncon:
-                contact = True
+        if self.controller == "actuator" and self.slow_terms == "period":
+            step = mujoco.mj_step
+            for _ in range(self.n_substeps):
+                step(m, d)
+                acc += sensor
+                racc += xmat
+                if d.ncon:
+                    contact = True
+        else:  # reference variants: Python work at every physics step, between MuJoCo's two step halves
+            stiffness = np.asarray(stiffness, dtype=np.float64)
+            damping = damping_from_stiffness(stiffness)
+            for _ in range(self.n_substeps):
+                mujoco.mj_step1(m, d)
+                if self.slow_terms == "substep":
+                    self._slow_torques()
+                if self.controller == "python":
+                    self._python_impedance(stiffness, damping)
+                mujoco.mj_step2(m, d)
+                acc += sensor
+                racc += xmat
+                if d.ncon:
+                    contact = True
         mujoco.mj_forward(m, d)
         if int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number) != warnings_before:
             nan = np.full(6, np.nan)
