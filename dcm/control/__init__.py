@@ -23,7 +23,7 @@ from dcm.control.impedance import (
     filter_schedule,
 )
 from dcm.control.objectives import compliance_loss, task_loss
-from dcm.control.schedule import changepoint_phases, equal_time_phases, schedule_from_phases
+from dcm.control.schedule import changepoint_phases, equal_time_phases, phase_boundaries, schedule_from_phases
 
 __all__ = [
     "StiffnessFilter",
@@ -35,6 +35,7 @@ __all__ = [
     "damping_from_stiffness",
     "equal_time_phases",
     "filter_schedule",
+    "phase_boundaries",
     "schedule_from_phases",
     "task_loss",
 ]

@@ -56,3 +56,13 @@ def schedule_from_phases(
         rot = np.full((n_phases, 3), float(rot_stiffness))
         phase_stiffness = np.concatenate([phase_stiffness, rot], axis=1)
     return np.repeat(phase_stiffness, np.diff(boundaries), axis=0)
+
+
+def phase_boundaries(method: str, n_phases: int, force_demo: np.ndarray) -> np.ndarray:
+    """Phase boundaries of a demo by ``method``: ``equal_time``, or ``changepoint`` of the demo force (H, >=3)."""
+    force_demo = np.asarray(force_demo)
+    if method == "equal_time":
+        return equal_time_phases(force_demo.shape[0], n_phases)
+    if method == "changepoint":
+        return changepoint_phases(force_demo[:, :3], n_phases)
+    raise ValueError(f"phase method {method!r} is unknown; expected 'equal_time' or 'changepoint'")

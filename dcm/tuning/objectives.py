@@ -43,8 +43,8 @@ class ModelObjective:
         stiffness = self.skill.schedules(proposals)
         x_attr = np.stack([self.attractor(k) for k in stiffness])
         batch = len(proposals)
-        x_demo = np.broadcast_to(self.skill.x_demo, (batch, *self.skill.x_demo.shape))
-        force_demo = np.broadcast_to(self.skill.force_demo, (batch, *self.skill.force_demo.shape))
+        x_demo = np.repeat(self.skill.x_demo[None], batch, axis=0)
+        force_demo = np.repeat(self.skill.force_demo[None], batch, axis=0)
         mean, std = self.model.predict_forces(x_demo, force_demo, x_attr, stiffness, n_samples=self.n_samples)
         return stiffness, np.asarray(mean), np.asarray(std)
 

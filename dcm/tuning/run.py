@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from dcm.control import phase_boundaries
 from dcm.data.search import SearchSpace, make_search
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import TrialLog, optimize
@@ -43,24 +44,26 @@ def resolve_device(name: str) -> str:
 
 def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds."""
-    from dcm.data.generate import phase_boundaries
+    from omegaconf import OmegaConf
+
+    from dcm.data.generate import resolve_domain
     from dcm.models.predict import load_model
     from dcm.sim.demos import DemoSpec
-    from dcm.sim.domain import DomainSpec
     from dcm.sim.rollout import Simulator
 
     out_dir.mkdir(parents=True, exist_ok=True)
     model = load_model(cfg.ckpt, map_location=resolve_device(cfg.device))
-    model_hz = float(model.data_spec["control_hz"])
-    if abs(model_hz - float(cfg.control_hz)) > 1e-9:
-        raise ValueError(f"checkpoint {cfg.ckpt} was trained at control_hz={model_hz}, tune.control_hz={cfg.control_hz}")
+    spec_model = model.data_spec
+    spec_model.check(spec_model.cond_channels, spec_model.target_channels, cfg.control_hz,
+                     source=f"tune.control_hz for checkpoint {cfg.ckpt}")
 
     spec = DemoSpec.load(cfg.demo)
-    simulator = Simulator(embodiment=cfg.embodiment, bowl=spec.bowl, domain=DomainSpec.resolve(cfg.domain),
+    simulator = Simulator(embodiment=cfg.embodiment, bowl=spec.bowl, domain=resolve_domain(OmegaConf.to_container(cfg.domain) if OmegaConf.is_config(cfg.domain) else cfg.domain),
                           control_hz=cfg.control_hz, seed=cfg.seed)
     demo = simulator.record_demo(spec)
     stiffness_cfg = cfg.stiffness
-    skill = Skill(demo.x_demo, demo.force_demo, phase_boundaries(demo, stiffness_cfg), stiffness_cfg.rot_Nmprad)
+    boundaries = phase_boundaries(stiffness_cfg.phases, stiffness_cfg.n_phases, demo.force_demo)
+    skill = Skill(demo.x_demo, demo.force_demo, boundaries, stiffness_cfg.rot_Nmprad)
     space = SearchSpace(stiffness_cfg.n_phases, stiffness_cfg.min_Npm, stiffness_cfg.max_Npm, stiffness_cfg.log)
 
     def new_search():
