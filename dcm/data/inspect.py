@@ -118,6 +118,7 @@ def plot_demo_trials(path: Path, demo_id: int, out: Path) -> Path:
     trials = []
     with h5py.File(path, "r") as f:
         control_hz = float(f.attrs["control_hz"])
+        source = f"{_decode_attr(f.attrs.get('dataset', path.name))} dataset, {_decode_attr(f.attrs.get('embodiment'))}"
         for name in sorted(f["data"].keys()):
             if int(f["data"][name].attrs.get("demo_id", -1)) == demo_id:
                 trials.append(_read_traj(f, name))
@@ -131,7 +132,7 @@ def plot_demo_trials(path: Path, demo_id: int, out: Path) -> Path:
     cmap = cm.viridis
 
     fig = plt.figure(figsize=(12, 7))
-    grid = fig.add_gridspec(2, 3)
+    grid = fig.add_gridspec(2, 3, hspace=0.35, wspace=0.3)
     ax_path = fig.add_subplot(grid[0, 0])
     ax_fz = fig.add_subplot(grid[0, 1:])
     ax_pareto = fig.add_subplot(grid[1, 0])
@@ -167,7 +168,8 @@ def plot_demo_trials(path: Path, demo_id: int, out: Path) -> Path:
     ax_pareto.grid(alpha=0.3)
     bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=[ax_fz, ax_ft], pad=0.01)
     bar.set_label("mean |K_xyz| over the trial [N/m]")
-    fig.suptitle(f"{path.name}: how the searched stiffness shapes the contact force", fontsize=10)
+    fig.suptitle(f"{source}: one demo and its {len(trials)} stiffness-search trials; colour = mean stiffness",
+                 fontsize=10)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=120, bbox_inches="tight")
     plt.close(fig)
