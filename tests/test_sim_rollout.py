@@ -158,3 +158,28 @@ def test_other_families_and_bowls_roll_out(sim: Simulator) -> None:
         rec = sim.record_demo(spec)
         trial = sim.rollout(rec, sim.constant_stiffness(rec, 500.0))
         assert rec.horizon == 80 and not trial.failed and trial.L_task < 0.5
+
+
+@pytest.mark.parametrize("fault", ["mujoco-blowup", "nan-force"])
+def test_numerical_blowup_is_detected(demo: Demo, fault: str) -> None:
+    """Inject a blow-up at step 50: a huge velocity (MuJoCo warns and resets its state) or a NaN wrench.
+    Either way the trial fails at that step with a reason, and nothing NaN leaks out."""
+    sim = Simulator("tool", BOWL, seed=0)
+    emb = sim.embodiment
+    original = emb.step
+    calls = {"n": 0}
+
+    def faulty_step(attractor: np.ndarray, stiffness: np.ndarray):
+        calls["n"] += 1
+        if calls["n"] == 51 and fault == "mujoco-blowup":
+            emb.data.qvel[0] = 1e40
+        result = original(attractor, stiffness)
+        if calls["n"] == 51 and fault == "nan-force":
+            result.force_contact[:] = np.nan
+        return result
+
+    emb.step = faulty_step  # type: ignore[method-assign]
+    trial = sim.rollout(demo, sim.constant_stiffness(demo, 600.0))
+    assert trial.failed and trial.failed_step == 50
+    assert ("MuJoCo warning" if fault == "mujoco-blowup" else "non-finite") in trial.failure_reason
+    assert all(np.all(np.isfinite(a)) for a in (trial.x_obs, trial.v_obs, trial.force_obs, trial.force_sensor))
