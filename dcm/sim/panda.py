@@ -152,6 +152,8 @@ class PandaEmbodiment:
         self.spec.modelname = "dcm_panda"
         self.spec.visual.global_.offwidth = 640
         self.spec.visual.global_.offheight = 480
+        self.spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+        self.spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
         light = self.spec.worldbody.add_light()
         light.pos = [0.5, 0.0, 1.5]
         light.dir = [0.0, 0.0, -1.0]
