@@ -5,6 +5,7 @@
     python train.py -m model.diffusion_steps=1,5,10,30 seed=0,1,2      # sweep: one run dir per job
     python train.py stage=finetune init_from=<ckpt> data=realistic     # keeps the pre-training normaliser
     python train.py resume=<run_dir>                      # continue a killed run from <run_dir>/checkpoints/last.ckpt
+    python train.py resume=<run_dir> trainer.max_epochs=400   # ... or extend it (key=value overrides apply)
 
 Each run directory holds config.yaml (resolved), tb/ (TensorBoard), checkpoints/ (top-k on val/R + last.ckpt)
 and summary.json.
@@ -166,7 +167,16 @@ def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
     if not last.is_file():
         raise TrainConfigError(f"resume={run_dir}: no checkpoints/last.ckpt to resume from")
     resumed = OmegaConf.load(saved)
+    # other key=value overrides on the command line apply on top, e.g. trainer.max_epochs=200 to extend a run
+    extra = [o for o in HydraConfig.get().overrides.task if not o.startswith(("resume=", "hydra."))]
+    for override in extra:
+        key = override.split("=", 1)[0].lstrip("+~")
+        if OmegaConf.select(resumed, key, default=None) is None and key not in ("init_from",):
+            log.warning("resume: override %r names no key of the saved config", override)
+        resumed.merge_with(OmegaConf.from_dotlist([override.lstrip("+")]))
     resumed.resume = str(run_dir)
+    if extra:
+        OmegaConf.save(resumed, saved, resolve=True)
     return resumed, run_dir
 
 
