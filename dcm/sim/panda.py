@@ -25,6 +25,12 @@ nullspace every physics step). Measured on a spiral demo at 300-1500 N/m: the de
 per-step Python controller by 0.06-0.14 N RMS in contact force (L_task there: 1.5-2.3 N) and runs ~2.5x
 faster (``python bench/sim_throughput.py --variants``).
 
+Dynamics worth knowing: with robosuite's link inertias (and armature 0.1) the tip's apparent mass is about
+8-13 kg, so unit-mass damping D = 2 sqrt(K) leaves the arm under-damped (damping ratio ~0.3) and fast paths on
+steep bowls are tracked with visible lag; this is part of what a contact model must learn. Rotational gains act
+about the tool's axes, which differ from the bowl's only by sign flips near the nominal pose, so a diagonal
+rotational stiffness means the same thing in both. The bowl sits ``BOWL_ORIGIN_WORLD`` from the arm's base.
+
 Frames: the pose is the TCP (the far end of the sphere tip) in the bowl frame; its rotation vector is relative
 to "tool pointing straight down" in bowl axes. ``force_contact`` is the wrench on the tool from the bowl,
 estimated from the wrist sensor as a real setup does (tool weight and inertia removed), force in bowl axes and
