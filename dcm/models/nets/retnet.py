@@ -40,7 +40,7 @@ def _rotate(x: torch.Tensor, pos: torch.Tensor, inv_freq: torch.Tensor) -> torch
 class MultiScaleRetention(nn.Module):
     """Causal multi-scale retention with parallel (`forward`) and recurrent (`step`) forms."""
 
-    def __init__(self, d_model: int, n_heads: int = 4, value_factor: int = 2, gn_eps: float = 1e-5) -> None:
+    def __init__(self, d_model: int, n_heads: int = 4, value_factor: int = 1, gn_eps: float = 1e-5) -> None:
         super().__init__()
         if d_model % n_heads or (d_model // n_heads) % 2:
             raise ValueError(f"MultiScaleRetention: d_model={d_model} must split into {n_heads} heads of even size")
@@ -132,7 +132,7 @@ class MultiScaleRetention(nn.Module):
 class BidirectionalRetention(nn.Module):
     """Forward causal MSR + a causal MSR over the reversed sequence, summed (each with its own weights)."""
 
-    def __init__(self, d_model: int, n_heads: int = 4, value_factor: int = 2) -> None:
+    def __init__(self, d_model: int, n_heads: int = 4, value_factor: int = 1) -> None:
         super().__init__()
         self.fwd = MultiScaleRetention(d_model, n_heads, value_factor)
         self.bwd = MultiScaleRetention(d_model, n_heads, value_factor)
@@ -152,7 +152,7 @@ class RetNetBlock(nn.Module):
         d_model: int,
         n_heads: int = 4,
         ffn_mult: int = 2,
-        value_factor: int = 2,
+        value_factor: int = 1,
         dropout: float = 0.0,
         bidirectional: bool = False,
     ) -> None:
@@ -192,7 +192,7 @@ class RetNet(nn.Module):
         n_layers: int = 3,
         n_heads: int = 4,
         ffn_mult: int = 2,
-        value_factor: int = 2,
+        value_factor: int = 1,
         dropout: float = 0.0,
         bidirectional: bool = False,
     ) -> None:
@@ -239,7 +239,7 @@ class RetNetScoreNet(TokenScoreNet):
         n_layers: int = 3,
         n_heads: int = 4,
         ffn_mult: int = 2,
-        value_factor: int = 2,
+        value_factor: int = 1,
         dropout: float = 0.0,
         bidirectional: bool = False,
         **embed_kwargs: float,
