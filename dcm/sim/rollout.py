@@ -228,14 +228,6 @@ class Simulator:
         )
 
     def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
-        """The attractor (H, 6) this simulator commands for ``demo`` under schedule ``stiffness`` (H, 6).
-
-        Public so that a force model can be given exactly the attractor a rollout would use.
-        """
-        inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
-        return attractor_from_demo(demo.x_demo, demo.force_demo, stiffness, self.dt, inertia=inertia)
-
-    def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
         """The attractor (H, 6) a rollout of ``stiffness`` uses: the paper's equation with the commanded K
         and the embodiment's nominal Cartesian inertia. Robot-free tuning calls this to build model inputs."""
         inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
