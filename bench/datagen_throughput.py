@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import shutil
 import sys
 import tempfile
@@ -25,12 +26,19 @@ from dcm.data.generate import compose_config, generate  # noqa: E402
 from dcm.data.schema import load_dataset  # noqa: E402
 
 
-def timed_generate(overrides: list[str]) -> tuple[float, int]:
+def _cpu_seconds() -> float:
+    """CPU time of this process and its finished children (the pool's workers are joined at the end)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def timed_generate(overrides: list[str]) -> tuple[float, int, float]:
+    """(wall s, trajectories, CPU s): CPU/wall shows how much of the cores the run actually got."""
     cfg = compose_config("sim", overrides)
-    start = time.perf_counter()
+    cpu, start = _cpu_seconds(), time.perf_counter()
     path = generate(cfg)
     elapsed = time.perf_counter() - start
-    return elapsed, len(load_dataset(path, include_failed=True))
+    return elapsed, len(load_dataset(path, include_failed=True)), _cpu_seconds() - cpu
 
 
 def main() -> int:
@@ -43,18 +51,21 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix="dcm_datagen_bench_"))
     common = ["skills=[spiral]", f"embodiment={args.embodiment}", "progress=true"]
     try:
-        t1_subset, n1 = timed_generate([*common, f"out={tmp / 'subset.h5'}", "workers=1",
+        t1_subset, n1, cpu1 = timed_generate([*common, f"out={tmp / 'subset.h5'}", "workers=1",
                                         f"shard.count={args.subset_shards}", "shard.index=0"])
         out = args.out.resolve() if args.out else tmp / "sim_train.h5"
-        t2, n2 = timed_generate([*common, f"out={out}", f"workers={args.workers}"])
+        t2, n2, cpu2 = timed_generate([*common, f"out={out}", f"workers={args.workers}"])
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     t1_full = t1_subset * n2 / n1
     print(f"embodiment {args.embodiment}, cpu count {os.cpu_count()}, load average {os.getloadavg()[0]:.2f}")
     print(f"1 worker : {n1} trajectories in {t1_subset:.1f} s = {n1 / t1_subset:.2f} traj/s "
-          f"(subset 1/{args.subset_shards}; extrapolated full set {t1_full / 60:.1f} min)")
-    print(f"{args.workers} workers: {n2} trajectories in {t2:.1f} s ({t2 / 60:.1f} min) = {n2 / t2:.2f} traj/s")
-    print(f"scaling {args.workers} vs 1 worker: {t1_full / t2:.2f}x")
+          f"(subset 1/{args.subset_shards}; extrapolated full set {t1_full / 60:.1f} min); "
+          f"CPU {cpu1:.0f} s = {cpu1 / t1_subset:.2f} cores busy")
+    print(f"{args.workers} workers: {n2} trajectories in {t2:.1f} s ({t2 / 60:.1f} min) = {n2 / t2:.2f} traj/s; "
+          f"CPU {cpu2:.0f} s = {cpu2 / t2:.2f} cores busy")
+    print(f"scaling {args.workers} vs 1 worker: {t1_full / t2:.2f}x wall; per CPU-second "
+          f"{(n2 / cpu2) / (n1 / cpu1):.2f} of the 1-worker efficiency (other load on the machine lowers the first)")
     if args.out:
         print(f"kept {args.out}")
     return 0
