@@ -228,11 +228,15 @@ def run_jobs(jobs: Sequence[DemoJob], fingerprints: dict[int, str], settings: di
         with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init,
                                  initargs=(settings, str(work_dir), progress)) as pool:
             pending = {pool.submit(_worker_run, job, fingerprints[job.index]) for job in jobs}
-            while pending:
-                finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                _drain(progress, bar)
-                for future in finished:
-                    future.result()  # re-raise a worker's GenerationError here
+            try:
+                while pending:
+                    finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                    _drain(progress, bar)
+                    for future in finished:
+                        future.result()  # re-raise a worker's GenerationError here
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)  # don't sit through the remaining demos
+                raise
             _drain(progress, bar)
     finally:
         bar.close()
