@@ -1,0 +1,91 @@
+"""train.py end to end, as a user runs it: a 2-run sweep, evaluate, fine-tune, resume, bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+# a few steps of a small RetNet; every run still writes TensorBoard logs, checkpoints and its config
+TINY = ["trainer=fast", "trainer.max_epochs=1", "net.d_model=32", "net.n_layers=1", "net.n_heads=2",
+        "data.batch_size=8", "model.warmup_steps=2", "metrics.n_plot=1"]
+
+
+def _run(args: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
+    env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONWARNINGS="ignore")
+    proc = subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"{args} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return proc
+
+
+@pytest.fixture(scope="module")
+def sweep(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sweep")
+    _run([str(REPO / "train.py"), "-m", "model.diffusion_steps=1,2", "data=path", f"data.path={tiny_dataset_path}",
+          *TINY, f"hydra.sweep.dir={out}"], cwd=out)
+    return out
+
+
+def test_sweep_makes_one_run_dir_per_job(sweep: Path) -> None:
+    runs = sorted(p for p in sweep.iterdir() if p.is_dir() and (p / "config.yaml").exists())
+    assert len(runs) == 2, list(sweep.iterdir())
+    assert "diffusion_steps-1" in runs[0].name and "diffusion_steps-2" in runs[1].name
+    for run in runs:
+        assert list((run / "tb").glob("events.out.tfevents.*")), f"no TensorBoard events in {run}"
+        assert (run / "checkpoints" / "last.ckpt").exists()
+        assert list((run / "checkpoints").glob("epoch*-R*.ckpt")), "no checkpoint selected on val/R"
+        assert (run / ".hydra" / "config.yaml").exists()
+        summary = json.loads((run / "summary.json").read_text())
+        assert summary["monitor"] == "val/R" and "test/R" in summary["test"]
+
+
+def test_evaluate_writes_json(sweep: Path, tiny_dataset_path: Path, tmp_path: Path) -> None:
+    from dcm.evaluate import main as evaluate_main
+
+    ckpt = next(sweep.glob("1_*/checkpoints/last.ckpt"))
+    evaluate_main([f"ckpt={ckpt}", f"dataset={tiny_dataset_path}", "split=valid", f"out={tmp_path / 'm.json'}",
+                   "n_samples=2"])
+    result = json.loads((tmp_path / "m.json").read_text())
+    assert result["n"] == 3 and result["T"] == 2 and result["split"] == "valid"
+    assert {"L_MSE", "R", "rmse_Fx", "rmse_Fy", "rmse_Fz"} <= set(result)
+
+
+def test_finetune_keeps_the_pretraining_normaliser_and_resume_continues(sweep: Path, tiny_dataset_path: Path,
+                                                                         tmp_path: Path) -> None:
+    import torch
+
+    ckpt = next(sweep.glob("1_*/checkpoints/last.ckpt"))
+    run = tmp_path / "ft"
+    _run([str(REPO / "train.py"), "stage=finetune", f"init_from={ckpt}", "model.diffusion_steps=2", "data=path",
+          f"data.path={tiny_dataset_path}", "usage_rate=0.5", *TINY, f"hydra.run.dir={run}"], cwd=tmp_path)
+    pre = torch.load(ckpt, map_location="cpu", weights_only=True)["state_dict"]
+    ft = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
+    for key in ("target_norm.scale", "target_norm.center", "cond_norm.scale"):
+        assert torch.equal(pre[key], ft["state_dict"][key])
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["stage"] == "finetune" and summary["n_train_used"] < summary["n_train_total"]
+    steps_before = ft["global_step"]
+
+    # resume the same run (its saved config) for one more epoch
+    _run([str(REPO / "train.py"), f"resume={run}", "trainer.max_epochs=2", "test_after_fit=false"], cwd=tmp_path)
+    resumed = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert resumed["global_step"] > steps_before and resumed["epoch"] == 1
+
+
+def test_bad_invocations_fail_with_clear_messages(sweep: Path, tiny_dataset_path: Path, tmp_path: Path) -> None:
+    ckpt = next(sweep.glob("0_*/checkpoints/last.ckpt"))
+    common = ["data=path", f"data.path={tiny_dataset_path}", *TINY, f"hydra.run.dir={tmp_path / 'bad'}"]
+    proc = _run([str(REPO / "train.py"), "stage=finetune", *common], cwd=tmp_path, check=False)
+    assert proc.returncode != 0 and "needs init_from" in proc.stderr
+    proc = _run([str(REPO / "train.py"), "model=baseline", f"init_from={ckpt}", *common], cwd=tmp_path, check=False)
+    assert proc.returncode != 0 and "holds a 'dcm' model" in proc.stderr
+    from dcm.evaluate import main as evaluate_main
+
+    with pytest.raises(SystemExit, match="no split 'nosuch'"):
+        evaluate_main([f"ckpt={ckpt}", f"dataset={tiny_dataset_path}", "split=nosuch"])
