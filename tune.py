@@ -1,4 +1,4 @@
-"""Robot-free stiffness tuning of a new skill: `python tune.py ckpt=<model.ckpt> [demo=...] [k=v ...]`.
+"""Robot-free stiffness tuning of a new skill: `python tune.py ckpt=<model.ckpt> [demo=wavelike] [k=v ...]`.
 
 See conf/tune.yaml for every option. Writes results.json, pareto.png and solution_forces.png to the run
 directory; a killed run resumes with the same command plus `hydra.run.dir=<that run directory>`.

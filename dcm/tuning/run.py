@@ -57,7 +57,10 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     spec_model.check(spec_model.cond_channels, spec_model.target_channels, cfg.control_hz,
                      source=f"tune.control_hz for checkpoint {cfg.ckpt}")
 
-    spec = DemoSpec.load(cfg.demo)
+    if cfg.demo_file:
+        spec = DemoSpec.load(cfg.demo_file)
+    else:
+        spec = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo, resolve=True), where="tune.demo")
     simulator = Simulator(embodiment=cfg.embodiment, bowl=spec.bowl, domain=resolve_domain(OmegaConf.to_container(cfg.domain) if OmegaConf.is_config(cfg.domain) else cfg.domain),
                           control_hz=cfg.control_hz, seed=cfg.seed)
     demo = simulator.record_demo(spec)
@@ -96,7 +99,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     results = {
         "checkpoint": str(cfg.ckpt),
         "model": type(model).__name__,
-        "demo": str(cfg.demo),
+        "demo": spec.to_dict(),
         "embodiment": cfg.embodiment,
         "reference_point": {"L_task_N": reference[0], "L_comp_kNpm": reference[1]},
         "robot_free": {
