@@ -29,7 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from dcm.data.datamodule import DCMDataModule
 from dcm.data.schema import read_root_attrs
-from dcm.models.callbacks import ForceMetricsCallback
+from dcm.models.callbacks import ForceMetricsCallback, RunETACallback
 from dcm.models.configuration import CheckpointKindError
 from dcm.models.dcm import DCM, ForceModel
 from dcm.models.predict import checkpoint_kind
@@ -132,7 +132,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
                                  save_top_k=int(cfg.checkpoint.save_top_k), save_last=True,
                                  filename="epoch{epoch:03d}-R{val/R:.3f}", auto_insert_metric_name=False)
     callbacks = [ForceMetricsCallback(**OmegaConf.to_container(cfg.metrics, resolve=True)), checkpoint,
-                 LearningRateMonitor(logging_interval="epoch")]
+                 LearningRateMonitor(logging_interval="epoch"), RunETACallback()]
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tb", version="", default_hp_metric=False)
     trainer_kwargs = OmegaConf.to_container(cfg.trainer, resolve=True)
     trainer = L.Trainer(default_root_dir=str(run_dir), logger=logger, callbacks=callbacks, **trainer_kwargs)

@@ -159,3 +159,16 @@ def test_unfitted_normaliser_is_refused() -> None:
     x = np.zeros((1, 8, 6), np.float32)
     with pytest.raises(ModelInputError, match="not fitted"):
         model.predict_forces(x, x, x, x)
+
+
+def test_ddim_sampler_option(trained: dict, tiny_dm: DCMDataModule) -> None:
+    base = trained["dcm"]["model"]
+    ddim = DCM(**{**dict(base.hparams), "sampler": "ddim", "sampling_steps": 5})
+    ddim.load_state_dict(base.state_dict())
+    x = _inputs(tiny_dm, 2)
+    a, _ = ddim.predict_forces(*x, n_samples=1, generator=torch.Generator().manual_seed(3))
+    b, _ = ddim.predict_forces(*x, n_samples=1, generator=torch.Generator().manual_seed(3))
+    np.testing.assert_array_equal(a, b)
+    assert np.all(np.isfinite(a)) and a.shape == x[0].shape
+    with pytest.raises(ValueError, match="divid"):
+        DCM(**{**dict(base.hparams), "sampler": "ddim", "sampling_steps": 3})

@@ -10,3 +10,23 @@ from dcm.models.nets import SCORE_NETS, build_score_net
 __all__ = ["SCORE_NETS", "build_score_net"]
 
 # --- LightningModule exports (DCM, Baseline) go below this line ---
+
+
+def __getattr__(name: str):
+    """Lazy access to the LightningModules (`from dcm.models import DCM`) without importing Lightning eagerly."""
+    if name == "DCM":
+        from dcm.models.dcm import DCM
+
+        return DCM
+    if name == "Baseline":
+        from dcm.models.baseline import Baseline
+
+        return Baseline
+    if name == "load_model":
+        from dcm.models.predict import load_model
+
+        return load_model
+    raise AttributeError(f"module 'dcm.models' has no attribute {name!r}")
+
+
+__all__ += ["DCM", "Baseline", "load_model"]

@@ -152,3 +152,40 @@ class ForceMetricsCallback(Callback):
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self._evals = int(state_dict.get("evals", 0))
+
+
+class RunETACallback(Callback):
+    """Shows the whole run's remaining time (``eta_min``) in the progress bar and logs it.
+
+    Lightning's bar times the current epoch only; a run ends at ``max_epochs`` or ``max_time``, whichever
+    comes first, and this estimates which from the mean epoch duration so far (validation included).
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._start: float | None = None
+        self._start_epoch = 0
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: Any) -> None:
+        import time
+
+        self._start = time.monotonic()
+        self._start_epoch = trainer.current_epoch
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: Any) -> None:
+        import time
+
+        if self._start is None:
+            return
+        done = trainer.current_epoch + 1 - self._start_epoch
+        elapsed = time.monotonic() - self._start
+        per_epoch = elapsed / max(done, 1)
+        remaining = math.inf
+        if trainer.max_epochs is not None and trainer.max_epochs > 0:
+            remaining = (trainer.max_epochs - trainer.current_epoch - 1) * per_epoch
+        for cb in trainer.callbacks:  # max_time lives in the Timer callback
+            time_left = getattr(cb, "time_remaining", None)
+            if callable(time_left) and time_left() is not None:
+                remaining = min(remaining, float(time_left()))
+        if math.isfinite(remaining):
+            pl_module.log("eta_min", remaining / 60.0, prog_bar=True, on_epoch=True, on_step=False)
