@@ -33,6 +33,7 @@ __all__ = [
     "make_scheduler",
     "add_noise",
     "sample_timesteps",
+    "check_inference_steps",
     "diffusion_loss",
     "sample",
     "sample_many",
@@ -223,7 +224,8 @@ def diffusion_loss(
     return torch.nn.functional.mse_loss(eps, noise, reduction=reduction)
 
 
-def _inference_steps(scheduler: Scheduler, num_inference_steps: int | None) -> int:
+def check_inference_steps(scheduler: Scheduler, num_inference_steps: int | None) -> int:
+    """Validate a sampler step count against `scheduler` (call it at build time to fail early); returns it."""
     T = scheduler.config.num_train_timesteps
     n = T if num_inference_steps is None else int(num_inference_steps)
     if not 1 <= n <= T:
@@ -234,6 +236,9 @@ def _inference_steps(scheduler: Scheduler, num_inference_steps: int | None) -> i
         divisors = [d for d in range(1, T + 1) if T % d == 0]
         raise ScheduleError(f"DDIM needs num_inference_steps dividing T={T}; got {n}, choose one of {divisors}")
     return n
+
+
+_inference_steps = check_inference_steps  # former private name, kept for existing callers
 
 
 @torch.no_grad()
@@ -249,9 +254,10 @@ def sample(
 
     DDPM: ancestral sampling over all T steps (default) or a trailing subset. DDIM (eta = 0,
     deterministic given the start noise): fewer steps, `num_inference_steps` must divide T.
-    Runs on `cond`'s device and dtype; put the net in eval mode yourself.
+    Runs on `cond`'s device and dtype; put the net in eval mode yourself. The scheduler is stateful
+    (`set_timesteps`), so give each concurrent sampler its own.
     """
-    n = _inference_steps(scheduler, num_inference_steps)
+    n = check_inference_steps(scheduler, num_inference_steps)
     scheduler.set_timesteps(n)  # timesteps stay on the CPU: diffusers indexes its CPU tables with them
     x = randn_tensor(tuple(shape), generator=generator, device=cond.device, dtype=cond.dtype)
     batch = torch.ones(shape[0], dtype=torch.long, device=cond.device)
