@@ -115,7 +115,7 @@ class DemoRunner:
 
     def run(self, job: DemoJob, job_fingerprint: str, on_trial: Callable[[], None] = lambda: None) -> Path:
         """Record the demo, run its stiffness search, write its part file; returns the part path."""
-        from dcm.control.schedule import changepoint_phases, equal_time_phases, schedule_from_phases
+        from dcm.control.schedule import phase_boundaries, schedule_from_phases
         from dcm.sim.demos import DemoSpec
 
         stiffness_cfg = self.settings["stiffness"]
@@ -124,12 +124,10 @@ class DemoRunner:
         demo = sim.record_demo(spec)
         horizon = demo.x_demo.shape[0]
         n_phases = int(stiffness_cfg["n_phases"])
-        if stiffness_cfg["phases"] == "equal_time":
-            boundaries = equal_time_phases(horizon, n_phases)
-        elif stiffness_cfg["phases"] == "changepoint":
-            boundaries = changepoint_phases(demo.force_demo[:, :3], n_phases)
-        else:
-            raise GenerationError(f"stiffness.phases = {stiffness_cfg['phases']!r}; expected equal_time or changepoint")
+        try:  # the same segmentation the robot-free tuner uses
+            boundaries = phase_boundaries(str(stiffness_cfg["phases"]), n_phases, demo.force_demo)
+        except ValueError as err:
+            raise GenerationError(f"stiffness.phases / n_phases: {err}") from err
         space = SearchSpace(n_phases=n_phases, min_Npm=float(stiffness_cfg["min_Npm"]),
                             max_Npm=float(stiffness_cfg["max_Npm"]), log=bool(stiffness_cfg["log"]))
         search = make_search(self.settings["search"]["name"], space, job.seed, **self.settings["search"]["options"])
