@@ -11,6 +11,7 @@ how stiffness shapes the contact force (the data the contact model learns from).
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -49,9 +50,13 @@ def summarize(path: Path) -> str:
         lines.append(f"  {split:<8} {len(rows):>6} {n_demos:>6}   "
                      f"{lt.min():7.3f} {np.median(lt):7.3f} {lt.max():7.3f}        "
                      f"{lc.min():7.3f} {np.median(lc):7.3f} {lc.max():7.3f}")
-    failures = [m.get("failure_reason", "") for m, bad in zip(everything.meta, failed) if bad]
-    for reason in sorted(set(failures)):
-        lines.append(f"  failed: {failures.count(reason)} x {reason!r}")
+    # group failure reasons by their wording (numbers masked), keep one full example each
+    failures = [str(m.get("failure_reason", "")) for m, bad in zip(everything.meta, failed) if bad]
+    kinds: dict[str, list[str]] = {}
+    for reason in failures:
+        kinds.setdefault(re.sub(r"[-+]?\d+(\.\d+)?", "#", reason), []).append(reason)
+    for kind, examples in sorted(kinds.items()):
+        lines.append(f"  failed: {len(examples)} x {kind!r}, e.g. {examples[0]!r}")
     lines.append(f"  per-channel statistics over {attrs.get('stats_split', 'train')} (min / max / mean / std):")
     for field in FIELDS:
         stats = everything.stats[field]
