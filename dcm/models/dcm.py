@@ -252,7 +252,7 @@ class DCM(ForceModel):
         self.sample_scheduler = diffusion.make_scheduler(self.cfg.sampler, self.noise_schedule,
                                                          self.cfg.diffusion_steps)
         # validates DDIM's divisor rule now rather than at the first validation
-        diffusion._inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
+        diffusion.check_inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
 
     @property
     def default_samples(self) -> int:
