@@ -126,9 +126,9 @@ class ForceMetricsCallback(Callback):
         dataset = datamodule.eval_set(split)
         metrics, arrays = evaluate_model(pl_module, dataset, self.n_samples, self.seed)
         for key, value in metrics.items():
-            # identical on every rank (same data, same seed): no sync needed
+            # identical on every rank (same data, same seed); the sync only keeps DDP ranks formally in step
             pl_module.log(f"{prefix}/{key}", value if math.isfinite(value) else float("nan"),
-                          prog_bar=key in ("R", "L_MSE"), sync_dist=False, rank_zero_only=False)
+                          prog_bar=key in ("R", "L_MSE"), sync_dist=trainer.world_size > 1)
         self._evals += 1
         logger = trainer.logger
         if (self.n_plot > 0 and trainer.is_global_zero and logger is not None
