@@ -123,9 +123,11 @@ def alphas_cumprod(betas: torch.Tensor) -> torch.Tensor:
 class NoiseSchedule:
     """A named schedule plus the sampler settings that go with it; the `_target_` of conf/schedule/*.yaml.
 
-    `clip_sample_range=None` disables clipping of the x0 estimate (diffusers clips to [-1, 1] by
-    default, which would silently saturate forces outside the training min/max). A value r > 0 clips
-    to [-r, r] in normalised units: a guard against the 1/sqrt(alpha_bar_T) blow-up at the first step.
+    `clip_sample_range=r` clips the x0 estimate to [-r, r] in normalised units. Forces are normalised to
+    [-1, 1], and with alpha_bar_T ~ 1e-5 the first steps divide the net's error by sqrt(alpha_bar_t), so an
+    unclipped chain amplifies small errors into forces 50x outside the data (measured: val L_MSE 0.52
+    unclipped vs 0.002 with r = 1.5 on the same checkpoint). The default 1.5 leaves room for forces beyond
+    the training min/max (diffusers' own default, 1.0, would saturate them); None disables clipping.
     `variance_type`: "fixed_small" = posterior variance beta~_t (Ho et al.'s better-NLL choice and
     diffusers' default); "fixed_large" = beta_t, the paper's Eq. for p(F^(i-1) | F^(i)).
     """
@@ -134,7 +136,7 @@ class NoiseSchedule:
     beta_start: float = 1e-4
     beta_end: float = 0.02
     reference_steps: int = 1000
-    clip_sample_range: float | None = None
+    clip_sample_range: float | None = 1.5
     variance_type: Literal["fixed_small", "fixed_large"] = "fixed_small"
 
     def __post_init__(self) -> None:
