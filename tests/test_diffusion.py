@@ -50,8 +50,10 @@ def test_textbook_linear_endpoints_would_not_reach_noise_at_T30() -> None:
 def test_scheduler_defaults_are_pinned() -> None:
     ddpm = make_scheduler("ddpm", "linear", 30)
     ddim = make_scheduler("ddim", NoiseSchedule("cosine", clip_sample_range=3.0), 30)
-    assert ddpm.config.clip_sample is False and ddim.config.clip_sample is True
-    assert ddim.config.clip_sample_range == 3.0
+    unclipped = make_scheduler("ddpm", NoiseSchedule("linear", clip_sample_range=None), 30)
+    assert ddpm.config.clip_sample is True and ddpm.config.clip_sample_range == 1.5
+    assert ddim.config.clip_sample is True and ddim.config.clip_sample_range == 3.0
+    assert unclipped.config.clip_sample is False
     for s in (ddpm, ddim):
         assert s.config.prediction_type == "epsilon" and s.config.thresholding is False
         assert s.config.timestep_spacing == "trailing" and s.config.steps_offset == 0
