@@ -129,9 +129,13 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     model = build_model(cfg, dm)
 
     checkpoint = ModelCheckpoint(dirpath=ckpt_dir, monitor=cfg.checkpoint.monitor, mode=cfg.checkpoint.mode,
-                                 save_top_k=int(cfg.checkpoint.save_top_k), save_last=True,
+                                 save_top_k=int(cfg.checkpoint.save_top_k), save_last=False,
                                  filename="epoch{epoch:03d}-R{val/R:.3f}", auto_insert_metric_name=False)
+    # last.ckpt after every training epoch (not only every validation), so a killed run loses little
+    last_checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename="last", monitor=None, save_top_k=1,
+                                      every_n_epochs=1, save_on_train_epoch_end=True, enable_version_counter=False)
     callbacks = [ForceMetricsCallback(**OmegaConf.to_container(cfg.metrics, resolve=True)), checkpoint,
+                 last_checkpoint,
                  LearningRateMonitor(logging_interval="epoch"), RunETACallback()]
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tb", version="", default_hp_metric=False)
     trainer_kwargs = OmegaConf.to_container(cfg.trainer, resolve=True)
