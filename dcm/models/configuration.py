@@ -123,8 +123,8 @@ class DCMConfig(ForceModelConfig):
 
     diffusion_steps: int = 30  # T, 1..100
     # noise schedule: dcm.models.diffusion.NoiseSchedule fields (name, beta_start, ...); conf/schedule/*.yaml
-    # clip_sample_range 2.0: the x0 estimate is clipped to [-2, 2]; see conf/train.yaml for why
-    schedule: dict[str, Any] = field(default_factory=lambda: {"name": "linear", "clip_sample_range": 2.0})
+    # omitted fields take NoiseSchedule's defaults (incl. clipping the x0 estimate, which sampling needs)
+    schedule: dict[str, Any] = field(default_factory=lambda: {"name": "linear"})
     sampler: str = "ddpm"  # ddpm (ancestral, T steps) | ddim (deterministic, sampling_steps)
     sampling_steps: int | None = None  # DDIM only; None = T
     n_samples: int = 1  # k samples averaged per prediction during evaluation
@@ -134,7 +134,7 @@ class DCMConfig(ForceModelConfig):
         if not 1 <= int(self.diffusion_steps) <= MAX_DIFFUSION_STEPS:
             raise ModelInputError(f"diffusion_steps must be in 1..{MAX_DIFFUSION_STEPS}, got {self.diffusion_steps}")
         if isinstance(self.schedule, str):
-            self.schedule = {"name": self.schedule, "clip_sample_range": 2.0}
+            self.schedule = {"name": self.schedule}
         self.schedule = {k: v for k, v in dict(self.schedule).items() if k != "_target_"}
         if self.sampler not in SAMPLERS:
             raise ModelInputError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
