@@ -23,3 +23,4 @@ test: install
 
 bench: install
 	$(BIN)/python bench/sim_throughput.py
+	$(BIN)/python bench/model_throughput.py
