@@ -13,6 +13,7 @@ from hydra import compose, initialize_config_dir
 
 from dcm.data.datamodule import DCMDataModule
 from dcm.models.dcm import DCM
+from dcm.tuning.compare import compare
 from dcm.tuning.optimize import TrialLog
 from dcm.tuning.run import tune
 
@@ -71,6 +72,14 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
     assert second["robot_free"]["n_virtual_trials"] == 24
     np.testing.assert_array_equal(extended[:16], logged)
     assert json.loads((out_dir / "results.json").read_text())["robot_free"]["n_virtual_trials"] == 24
+
+    # Comparing runs uses one reference point over all of them; a single run reproduces its own numbers.
+    report = compare([out_dir], robot_trials=[2, 4])
+    assert report["robot_free"][str(out_dir)] == pytest.approx(second["robot_free"]["hypervolume"])
+    assert report["robot_based"]["N=4"] == pytest.approx(second["robot_based"]["hypervolume"])
+    assert report["robot_based"]["N=2"] <= report["robot_based"]["N=4"]
+    with pytest.raises(ValueError, match="first 5"):
+        compare([out_dir], robot_trials=[5])
 
 
 def test_tune_refuses_a_checkpoint_of_another_control_rate(tiny_checkpoint: Path, tmp_path: Path):

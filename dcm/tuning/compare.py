@@ -1,0 +1,80 @@
+"""Compare tuning runs by hypervolume against ONE shared reference point.
+
+    python -m dcm.tuning.compare outputs/tune/<run_a> outputs/tune/<run_b> [--robot-trials 5 20 50] [--out cmp.json]
+
+Each run's own ``results.json`` uses a reference point taken over that run alone, so hypervolumes of two
+runs do not compare. This command pools every run's validated robot-free solutions and robot-based trials,
+takes one reference point over the pool, and reports I_H for each run's robot-free solutions and for the
+first N robot-based trials of the first run (a seeded search's first N trials are exactly what an N-trial
+run would have done).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from dcm.tuning.optimize import TrialLog
+from dcm.tuning.pareto import hypervolume, reference_point
+
+
+def _validated(run: Path) -> np.ndarray:
+    results = json.loads((run / "results.json").read_text())
+    rows = [[s["validated"]["L_task_N"], s["validated"]["L_comp_kNpm"]] for s in results["robot_free"]["solutions"]]
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 2)
+
+
+def _finite(points: np.ndarray) -> np.ndarray:
+    return points[np.isfinite(points).all(axis=1)]
+
+
+def compare(runs: Sequence[Path], robot_trials: Sequence[int]) -> dict:
+    """Hypervolumes of every run's validated solutions and of robot-based prefixes, one reference point."""
+    for run in runs:
+        if not (run / "results.json").is_file():
+            raise FileNotFoundError(f"{run}: no results.json (is it a finished tune.py run directory?)")
+    robot_log = runs[0] / "robot_based_trials.npz"
+    robot = TrialLog.load(robot_log).arrays()[1] if robot_log.is_file() else np.zeros((0, 2))
+    validated = {str(run): _finite(_validated(run)) for run in runs}
+    reference = reference_point(*validated.values(), _finite(robot))
+    report = {
+        "reference_point": {"L_task_N": reference[0], "L_comp_kNpm": reference[1]},
+        "robot_free": {name: hypervolume(points, reference) for name, points in validated.items()},
+        "robot_based": {},
+    }
+    for n in robot_trials:
+        if n > len(robot):
+            raise ValueError(f"{robot_log} holds {len(robot)} robot-based trials; cannot report the first {n}")
+        report["robot_based"][f"N={n}"] = hypervolume(_finite(robot[:n]), reference)
+    return report
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m dcm.tuning.compare", description=__doc__.split("\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="tune.py run directories")
+    parser.add_argument("--robot-trials", nargs="*", type=int, default=[5, 20, 50])
+    parser.add_argument("--out", type=Path, default=None, help="also write the report as JSON")
+    args = parser.parse_args(argv)
+    try:
+        report = compare(args.runs, args.robot_trials)
+    except (FileNotFoundError, ValueError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    ref = report["reference_point"]
+    print(f"reference point: L_task {ref['L_task_N']:.3f} N, L_comp {ref['L_comp_kNpm']:.3f} kN/m")
+    for name, value in report["robot_free"].items():
+        print(f"robot-free  {name}: I_H = {value:.4f}")
+    for name, value in report["robot_based"].items():
+        print(f"robot-based {name}: I_H = {value:.4f}")
+    if args.out is not None:
+        args.out.write_text(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
