@@ -13,10 +13,12 @@ and ``latency_steps``.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
 
 import numpy as np
+
+from dcm.sim.spec_io import SpecIO
 
 
 class DomainSpecError(ValueError):
@@ -31,7 +33,7 @@ def _vec6(value: Any, name: str) -> tuple[float, ...]:
 
 
 @dataclass
-class DomainSpec:
+class DomainSpec(SpecIO):
     """Perturbations relative to the nominal model.
 
     Units: ``joint_frictionloss`` in N (slide joints) or N·m (revolute joints); ``joint_damping`` in
@@ -39,6 +41,9 @@ class DomainSpec:
     ``ft_lowpass_hz`` is the cut-off of a first-order filter applied at the control rate (0 = off);
     ``latency_steps`` delays attractor and stiffness commands by whole control periods.
     """
+
+    spec_kind: ClassVar[str] = "domain"
+    spec_error: ClassVar[type[ValueError]] = DomainSpecError
 
     name: str = "nominal"
     friction_scale: float = 1.0
@@ -83,25 +88,6 @@ class DomainSpec:
         out["ft_bias"] = list(self.ft_bias)
         out["ft_noise_std"] = list(self.ft_noise_std)
         return out
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any], where: str = "domain") -> "DomainSpec":
-        known = {f.name for f in fields(cls)}
-        extra = set(data) - known
-        if extra:
-            raise DomainSpecError(f"{where}: unknown domain field(s) {sorted(extra)}; known: {sorted(known)}")
-        return cls(**data)
-
-    @classmethod
-    def load(cls, path: str) -> "DomainSpec":
-        """Read a domain preset (YAML or JSON), e.g. ``conf/domain/realistic.yaml``."""
-        import yaml
-
-        with open(path) as fh:
-            data = yaml.safe_load(fh)
-        if not isinstance(data, dict):
-            raise DomainSpecError(f"{path}: expected a mapping of domain fields, got {type(data).__name__}")
-        return cls.from_dict(data, where=str(path))
 
     @classmethod
     def preset(cls, name: str) -> "DomainSpec":

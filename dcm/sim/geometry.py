@@ -17,10 +17,12 @@ finds ground instead of falling off the heightfield.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
 
 import numpy as np
+
+from dcm.sim.spec_io import SpecIO
 
 SHAPES = ("spherical_cap", "flat", "elliptic")
 
@@ -30,13 +32,16 @@ class BowlSpecError(ValueError):
 
 
 @dataclass
-class BowlSpec:
+class BowlSpec(SpecIO):
     """A bowl (or plate) and its contact properties.
 
     ``solref``/``solimp`` follow MuJoCo's meaning. The defaults are deliberately soft
     (``solimp = [0, 0.95, 0.005]``): with MuJoCo's stiff default a sliding sphere chatters on the
     heightfield facets and the force shows spikes of tens of newtons.
     """
+
+    spec_kind: ClassVar[str] = "bowl"
+    spec_error: ClassVar[type[ValueError]] = BowlSpecError
 
     shape: str = "spherical_cap"
     rim_radius_m: float = 0.15
@@ -85,26 +90,6 @@ class BowlSpec:
         out["solref"] = list(self.solref)
         out["solimp"] = list(self.solimp)
         return out
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any], where: str = "bowl") -> "BowlSpec":
-        """Build from a dict (YAML/JSON); unknown keys raise naming ``where`` and the key."""
-        known = {f.name for f in fields(cls)}
-        extra = set(data) - known
-        if extra:
-            raise BowlSpecError(f"{where}: unknown bowl field(s) {sorted(extra)}; known: {sorted(known)}")
-        return cls(**data)
-
-    @classmethod
-    def load(cls, path: str) -> "BowlSpec":
-        """Read a bowl preset (YAML or JSON), e.g. ``conf/bowl/small.yaml``."""
-        import yaml
-
-        with open(path) as fh:
-            data = yaml.safe_load(fh)
-        if not isinstance(data, dict):
-            raise BowlSpecError(f"{path}: expected a mapping of bowl fields, got {type(data).__name__}")
-        return cls.from_dict(data, where=str(path))
 
     # -- analytic surface ------------------------------------------------------------------------
     @property
