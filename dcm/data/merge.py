@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
 import h5py
 import numpy as np
+
+from dcm.data.atomic import atomic_path
 
 from dcm.data.schema import FIELDS, SCALARS, SPLITS, TRAJ_NAME_FORMAT, DatasetError, _decode_attr, read_root_attrs, \
     write_dataset
@@ -39,19 +39,9 @@ def part_path(work_dir: Path, demo_index: int) -> Path:
 
 def write_part(work_dir: Path, demo_index: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Path:
     """Atomically store one finished demo (all its trials) in the work dir."""
-    work_dir.mkdir(parents=True, exist_ok=True)
     target = part_path(work_dir, demo_index)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".tmp", dir=work_dir)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, meta=np.array(json.dumps(meta, sort_keys=True)), **arrays)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(target) as tmp, open(tmp, "wb") as handle:
+        np.savez(handle, meta=np.array(json.dumps(meta, sort_keys=True)), **arrays)
     return target
 
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -28,6 +27,8 @@ from typing import Any, Mapping, Sequence
 
 import h5py
 import numpy as np
+
+from dcm.data.atomic import atomic_path
 
 FORMAT_VERSION = "1"
 SPLITS = ("train", "valid", "test")
@@ -237,10 +238,7 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
     root_attrs.setdefault("created", datetime.now(timezone.utc).isoformat(timespec="seconds"))
     root_attrs.setdefault("config", "")
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp_name:
         with h5py.File(tmp_name, "w") as f:
             for key, value in root_attrs.items():
                 f.attrs[key] = _encode_attr(value)
@@ -259,13 +257,6 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
                 group = stats_group.create_group(field_name)
                 for stat_name, value in per_stat.items():
                     group.create_dataset(stat_name, data=value)
-        with open(tmp_name, "rb+") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        if os.path.exists(tmp_name):
-            os.unlink(tmp_name)
-        raise
 
 
 # ----------------------------------------------------------------------------------------------- reader

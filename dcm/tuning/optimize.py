@@ -8,7 +8,6 @@ so re-asking with the logged outcomes reproduces the same proposals without eval
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -16,6 +15,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
+from dcm.data.atomic import atomic_path
 from dcm.data.search import StiffnessSearch
 
 # (B, P, 3) proposals in N/m -> (B, 2) objectives (L_task, L_comp); NaN rows mark failed trials.
@@ -36,10 +36,8 @@ class TrialLog:
         return np.stack(self.phase_stiffness), np.stack(self.objectives)
 
     def save(self, path: Path) -> None:
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as f:
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.savez(f, phase_stiffness=np.stack(self.phase_stiffness), objectives=np.stack(self.objectives))
-        os.replace(tmp, path)
 
     @classmethod
     def load(cls, path: Path) -> "TrialLog":
