@@ -9,9 +9,26 @@ import numpy as np
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 
 
-def damping_from_stiffness(stiffness: np.ndarray) -> np.ndarray:
-    """Unit-mass critical damping ``D = 2 sqrt(K)`` (elementwise on the stiffness diagonal)."""
-    return 2.0 * np.sqrt(np.asarray(stiffness, dtype=np.float64))
+DAMPING_MODES = ("unit", "critical")
+
+
+def damping_from_stiffness(stiffness: np.ndarray, mass: float | np.ndarray = 1.0) -> np.ndarray:
+    """Critical damping ``D = 2 sqrt(m K)`` for a mass ``m`` per axis (elementwise on the diagonal).
+
+    ``mass = 1`` is the paper's (and franka_ros') ``D = 2 sqrt(K)``, critical only for unit inertia; a Panda
+    tip feels 8-13 kg, where that gives a damping ratio near 0.3 and the arm rings after every change.
+    Passing the embodiment's apparent Cartesian mass makes the damping critical for the arm itself.
+    """
+    return 2.0 * np.sqrt(np.asarray(mass, dtype=np.float64) * np.asarray(stiffness, dtype=np.float64))
+
+
+def damping_mass(mode: str, apparent_mass: np.ndarray) -> np.ndarray:
+    """The per-axis mass ``damping_from_stiffness`` uses: 1 for ``"unit"``, the embodiment's for ``"critical"``."""
+    if mode == "unit":
+        return np.ones(6)
+    if mode == "critical":
+        return np.asarray(apparent_mass, dtype=np.float64)
+    raise ValueError(f"damping = {mode!r}; expected one of {DAMPING_MODES}")
 
 
 def attractor_from_demo(
@@ -20,12 +37,15 @@ def attractor_from_demo(
     stiffness: np.ndarray,
     dt: float,
     inertia: float | np.ndarray = 0.0,
+    mass: float | np.ndarray = 1.0,
 ) -> np.ndarray:
     """Attractor that makes the impedance law reproduce the demo: x + K^-1 (D xdot + Λ xddot - F).
 
     With the controller ``F_cmd = K (x_attr - x) - D xdot`` and the demo pose and force, this is the pose the
     spring must pull towards so that the commanded force balances the demonstrated contact force.
-    Velocities and accelerations come from central finite differences of the demo.
+    ``stiffness`` must be what the controller applies (after filtering), and ``mass`` the damping's mass
+    (``damping_from_stiffness``); otherwise the attractor jumps while the gains lag and every stiffness
+    change produces a force spike. Velocities and accelerations come from central finite differences.
     """
     x_demo = np.asarray(x_demo, dtype=np.float64)
     force_demo = np.asarray(force_demo, dtype=np.float64)
@@ -40,7 +60,7 @@ def attractor_from_demo(
         raise StiffnessOutOfRange(f"stiffness must be positive; K[{t}, {AXES[axis]}] = {stiffness[t, axis]}")
     velocity = np.gradient(x_demo, dt, axis=0)
     acceleration = np.gradient(velocity, dt, axis=0)
-    damping = damping_from_stiffness(stiffness)
+    damping = damping_from_stiffness(stiffness, mass)
     return x_demo + (damping * velocity + np.asarray(inertia) * acceleration - force_demo) / stiffness
 
 

@@ -106,7 +106,8 @@ class DemoRunner:
         if self._sim is None or key != self._sim_key:  # one model per bowl; drop the old one to bound memory
             self._sim = Simulator(embodiment=self.settings["embodiment"], bowl=BowlSpec.from_dict(bowl),
                                   domain=resolve_domain(self.settings["domain"]),
-                                  control_hz=self.settings["control_hz"], seed=seed)
+                                  control_hz=self.settings["control_hz"], seed=seed,
+                                  damping=self.settings["stiffness"]["damping"])
             self._sim_key = key
         # The simulator draws its noise from (seed, hash of the inputs), so setting the demo's seed makes the
         # results independent of which demos this worker ran before.

@@ -1,10 +1,10 @@
 """Demonstrations: small reproducible specs of a wiping path, and the recorded (pose, force) trajectories.
 
-A ``DemoSpec`` describes a path over a bowl (spiral, wavelike, line, or a user's waypoint file) with a
-pressing depth. ``Simulator.record_demo`` executes it with a *demonstration controller* (fixed stiffness
-``stiffness_Npm``; attractor = surface point pushed ``press`` below along the surface normal; a smooth
-approach from ``hover_m`` above the surface during the first ``approach_s``) and records the observed
-pose and contact wrench as a ``Demo``: ``x_demo (H, 6)`` and ``force_demo (H, 6)``.
+A ``DemoSpec`` describes a path over a bowl (spiral, wavelike, line, a seeded random smooth curve, or a
+user's waypoint file) with a pressing depth. ``Simulator.record_demo`` executes it with a *demonstration
+controller* (fixed stiffness ``stiffness_Npm``; attractor = surface point pushed ``press`` below along the
+surface normal; a smooth approach from ``hover_m`` above the surface during the first ``approach_s``) and
+records the observed pose and contact wrench as a ``Demo``: ``x_demo (H, 6)`` and ``force_demo (H, 6)``.
 
 Timing: the control rate is 20 Hz (``dt = 0.05 s``) unless the simulator says otherwise, and
 ``H = round(duration_s * control_hz)`` steps, sample ``k`` at ``t = k dt`` (8 s -> H = 160). Waypoint files
@@ -28,7 +28,7 @@ import numpy as np
 
 from dcm.sim.geometry import BowlSpec, BowlSpecError
 
-FAMILIES = ("spiral", "wavelike", "line", "waypoints")
+FAMILIES = ("spiral", "wavelike", "line", "curve", "waypoints")
 WAYPOINT_HEADER = ("t", "x", "y", "press")
 MIN_WAYPOINT_ROWS = 2
 PRESS_RANGE_M = (-0.05, 0.05)
@@ -42,8 +42,20 @@ FAMILY_PARAMS: dict[str, dict[str, Any]] = {
     "wavelike": {"length_m": None, "amplitude_m": None, "cycles": 2.0, "angle_deg": 0.0},
     # Straight stroke from start_xy_m to end_xy_m (default across the bowl along x, 0.6 x rim each side).
     "line": {"start_xy_m": None, "end_xy_m": None},
+    # Seeded random smooth closed curve (a Fourier series of `harmonics` low frequencies in x and y, amplitude
+    # ~1/k), scaled so its farthest point is `extent` x the rim (normalised radius, so elliptic bowls too),
+    # traversed from rest for an arc length of (mean speed x wipe time): less than one loop is an open
+    # stroke, more loops around. Mean speed [m/s] is drawn in `speed_mps`; the press depth [m] is drawn in
+    # `press_range_m`, or is the spec's press_m when that is null.
+    "curve": {"seed": 0, "harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.10], "press_range_m": None},
     "waypoints": {},
 }
+# Allowed values of the curve parameters (inclusive).
+CURVE_SEED_MAX = 2**32 - 1
+CURVE_HARMONICS = (1, 8)
+CURVE_EXTENT = (0.05, 0.95)
+CURVE_SPEED_MPS = (0.005, 0.3)
+CURVE_GRID = 4096  # samples per loop for scaling and arc length
 
 
 class DemoSpecError(ValueError):
@@ -183,6 +195,8 @@ class DemoSpec:
             raise DemoSpecError(f"{where}: family 'waypoints' needs a 'waypoints' CSV path")
         if self.family == "spiral" and self.params.get("direction", "ccw") not in ("cw", "ccw"):
             raise DemoSpecError(f"{where}: spiral direction = {self.params['direction']!r}; expected 'cw' or 'ccw'")
+        if self.family == "curve":
+            self._check_curve_params()
         checks = {
             "press_m": (self.press_m, *PRESS_RANGE_M),
             "duration_s": (self.duration_s, 0.5, 120.0),
@@ -257,6 +271,38 @@ class DemoSpec:
             else:
                 yaml.safe_dump(self.to_dict(), fh, sort_keys=False)
 
+    def _check_curve_params(self) -> None:
+        """Validate the curve parameters (errors name the parameter and its allowed range); ranges become lists
+        of floats so YAML/JSON round trips compare equal."""
+        where = self.source
+
+        def integer(key: str, low: int, high: int) -> None:
+            value = self._param(key)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+                raise DemoSpecError(f"{where}: curve params.{key} = {value!r} must be an integer in [{low}, {high}]")
+
+        def value_range(key: str, low: float, high: float, unit: str) -> None:
+            value = self._param(key)
+            pair = list(value) if isinstance(value, (list, tuple)) else None
+            ok = pair is not None and len(pair) == 2 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair)
+            if not ok or not low <= pair[0] <= pair[1] <= high:
+                raise DemoSpecError(f"{where}: curve params.{key} = {value!r} must be [low, high] {unit} with "
+                                    f"{low} <= low <= high <= {high}")
+            if key in self.params:
+                self.params[key] = [float(pair[0]), float(pair[1])]
+
+        integer("seed", 0, CURVE_SEED_MAX)
+        integer("harmonics", *CURVE_HARMONICS)
+        extent = self._param("extent")
+        if isinstance(extent, bool) or not isinstance(extent, (int, float)) or not (
+                CURVE_EXTENT[0] <= extent <= CURVE_EXTENT[1]):
+            raise DemoSpecError(f"{where}: curve params.extent = {extent!r} must be a number in {list(CURVE_EXTENT)} "
+                                "(fraction of the rim radius)")
+        value_range("speed_mps", *CURVE_SPEED_MPS, "m/s")
+        if self._param("press_range_m") is not None:
+            value_range("press_range_m", *PRESS_RANGE_M, "m")
+
     # -- the path --------------------------------------------------------------------------------
     def _param(self, key: str) -> Any:
         value = self.params.get(key, FAMILY_PARAMS[self.family][key])
@@ -296,8 +342,8 @@ class DemoSpec:
             t = np.arange(horizon) * dt
             wipe_s = max(self.duration_s - self.approach_s - dt, dt)
             u = _smooth_progress((t - self.approach_s) / wipe_s)
-            xy = self._design_xy(u, rim)
-            press = np.full(horizon, float(self.press_m))
+            xy = self._design_xy(u, rim, wipe_s)
+            press = np.full(horizon, self.curve_draws()["press_m"] if self.family == "curve" else float(self.press_m))
         if self.approach_s > 0:
             ramp = _smoothstep(t / self.approach_s)
             press = -self.hover_m + (press + self.hover_m) * ramp
@@ -310,7 +356,48 @@ class DemoSpec:
             )
         return np.column_stack([xy, press])
 
-    def _design_xy(self, u: np.ndarray, rim: float) -> np.ndarray:
+    def curve_draws(self) -> dict[str, Any]:
+        """The seeded draws of a ``curve`` spec: ``coeffs`` (harmonics, 4) = [cos x, sin x, cos y, sin y] of
+        harmonic k = 1..n, ``speed_mps`` (mean wiping speed) and ``press_m`` (press depth).
+
+        Shape, speed and press come from independent streams of ``seed``, so changing one range keeps the
+        other draws."""
+        if self.family != "curve":
+            raise DemoSpecError(f"{self.source}: curve_draws() needs family 'curve', not {self.family!r}")
+        shape_rng, speed_rng, press_rng = (np.random.default_rng(s) for s in
+                                           np.random.SeedSequence(int(self._param("seed"))).spawn(3))
+        k = np.arange(1, int(self._param("harmonics")) + 1, dtype=np.float64)
+        coeffs = shape_rng.standard_normal((len(k), 4)) / k[:, None]  # 1/k: low frequencies dominate, smooth
+        speed = float(speed_rng.uniform(*self._param("speed_mps")))
+        press_range = self._param("press_range_m")
+        press = float(self.press_m) if press_range is None else float(press_rng.uniform(*press_range))
+        return {"coeffs": coeffs, "speed_mps": speed, "press_m": press}
+
+    def _curve_xy(self, u: np.ndarray, wipe_s: float) -> np.ndarray:
+        """Progress ``u`` in [0, 1] -> (x, y) on the seeded curve, covering speed x wipe_s of arc length."""
+        draws = self.curve_draws()
+        coeffs = draws["coeffs"]
+        k = np.arange(1, len(coeffs) + 1, dtype=np.float64)
+        semi_axes = np.asarray(self.bowl.semi_axes_m)
+
+        def unit_xy(phase: np.ndarray) -> np.ndarray:  # phase in loops; (N, 2) before scaling
+            angle = 2.0 * np.pi * np.outer(phase, k)
+            cos, sin = np.cos(angle), np.sin(angle)
+            return np.stack([cos @ coeffs[:, 0] + sin @ coeffs[:, 1], cos @ coeffs[:, 2] + sin @ coeffs[:, 3]], axis=1)
+
+        grid = np.arange(CURVE_GRID + 1) / CURVE_GRID
+        loop = unit_xy(grid)
+        scale = float(self._param("extent")) / float(np.max(np.linalg.norm(loop, axis=1)))
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(loop * scale * semi_axes, axis=0), axis=1))])
+        length = draws["speed_mps"] * wipe_s
+        loops, rest = divmod(length, arc[-1])
+        end_phase = loops + float(np.interp(rest, arc, grid))
+        # Uniform in phase (not arc length): the tool slows down where the curve bends sharply, like a hand.
+        return unit_xy(end_phase * u) * scale * semi_axes
+
+    def _design_xy(self, u: np.ndarray, rim: float, wipe_s: float) -> np.ndarray:
+        if self.family == "curve":
+            return self._curve_xy(u, wipe_s)
         if self.family == "spiral":
             r_max = self._param("max_radius_m") or 0.7 * rim
             r_min = float(self._param("min_radius_m"))

@@ -3,7 +3,7 @@
 An embodiment owns one MuJoCo model (the robot or tool plus the bowl from ``scene.add_bowl``) and executes
 the Cartesian impedance law ``F_cmd = K (x_attr - x) - D xdot`` (+ gravity/bias compensation) at every
 physics step. The ``Simulator`` calls ``step`` once per control period with an attractor and the already
-filtered stiffness; everything shared by both embodiments (attractor, limits, filtering, sensing noise,
+filtered stiffness and its damping; everything shared by both embodiments (attractor, limits, filtering, sensing noise,
 latency, divergence checks, objectives) lives in ``rollout.py``.
 
 Frames: poses, velocities and the contact wrench are in the bowl frame (see ``dcm.control``).
@@ -61,6 +61,9 @@ class Embodiment(Protocol):
         """Put the tool at ``pose`` (bowl frame), at rest, with the attractor at the same pose."""
         ...
 
-    def step(self, attractor: np.ndarray, stiffness: np.ndarray) -> StepResult:
-        """Run one control period pulling towards ``attractor`` (6,) with stiffness ``K`` (6,)."""
+    apparent_mass: tuple[float, ...]  # (6,) per-axis mass critical damping uses [kg, kg·m²]
+
+    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None) -> StepResult:
+        """Run one control period pulling towards ``attractor`` (6,) with stiffness ``K`` (6,) and damping
+        ``D`` (6,), default ``2 sqrt(K)``."""
         ...

@@ -26,8 +26,9 @@ per-step Python controller by 0.06-0.14 N RMS in contact force (L_task there: 1.
 faster (``python bench/sim_throughput.py --variants``).
 
 Dynamics worth knowing: with robosuite's link inertias (and armature 0.1) the tip's apparent mass is about
-8-13 kg, so unit-mass damping D = 2 sqrt(K) leaves the arm under-damped (damping ratio ~0.3) and fast paths on
-steep bowls are tracked with visible lag; this is part of what a contact model must learn. Rotational gains act
+8-13 kg, so unit-mass damping D = 2 sqrt(K) leaves the arm under-damped (damping ratio ~0.3): it rings after
+every stiffness change. The ``Simulator`` therefore damps critically for ``apparent_mass`` by default
+(``damping="critical"``); ``damping="unit"`` gives the paper's D = 2 sqrt(K). Rotational gains act
 about the tool's axes, which differ from the bowl's only by sign flips near the nominal pose, so a diagonal
 rotational stiffness means the same thing in both. The bowl sits ``BOWL_ORIGIN_WORLD`` from the arm's base.
 
@@ -107,6 +108,10 @@ class PandaEmbodiment:
     """
 
     name = "panda"
+    # Diagonal of the apparent Cartesian mass Λ = (J M⁻¹ Jᵀ)⁻¹ at the TCP over the bowl's centre [kg, kg·m²]:
+    # what critical damping uses. Over the default bowl Λ varies by about ±30 % (x 11-13, y 7-9, z 10-18 kg);
+    # tests/test_sim_panda.py checks these values against the model.
+    apparent_mass = (10.0, 10.0, 10.0, 2.0, 0.9, 0.2)
 
     def __init__(
         self,
@@ -274,16 +279,17 @@ class PandaEmbodiment:
         return q.copy()
 
     # -- control -------------------------------------------------------------------------------------
-    def set_stiffness(self, stiffness: np.ndarray) -> None:
-        """Write K and D = 2 sqrt(K) into the six impedance actuators (bowl-axis translation, rotation)."""
+    def set_stiffness(self, stiffness: np.ndarray, damping: np.ndarray | None = None) -> None:
+        """Write K and D (default ``2 sqrt(K)``) into the six impedance actuators (bowl-axis translation, rotation)."""
         k = np.asarray(stiffness, dtype=np.float64)
         if k.shape != (6,) or not math.isfinite(k.sum()) or k.min() < 0:
             raise PandaError(f"stiffness must be 6 finite non-negative numbers, got {k!r}")
+        dmp = damping_from_stiffness(k) if damping is None else np.asarray(damping, dtype=np.float64)
         if self.controller == "python":  # the reference controller computes the law itself
-            k = np.zeros(6)
+            k = dmp = np.zeros(6)
         self._gain[:, 0] = k
         self._bias[:, 1] = -k
-        self._bias[:, 2] = -damping_from_stiffness(k)
+        self._bias[:, 2] = -dmp
 
     def set_attractor(self, attractor: np.ndarray) -> None:
         """Move the two mocap attractor sites to ``attractor`` (bowl frame)."""
@@ -350,15 +356,16 @@ class PandaEmbodiment:
         mujoco.mj_forward(m, d)
         self._slow_torques()
 
-    def step(self, attractor: np.ndarray, stiffness: np.ndarray) -> StepResult:
-        """One control period towards ``attractor`` with stiffness ``K``; wrench averaged over the substeps.
+    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None) -> StepResult:
+        """One control period towards ``attractor`` with stiffness ``K`` and damping ``D`` (default ``2 sqrt(K)``);
+        wrench averaged over the substeps.
 
         If MuJoCo reports a numerical instability during the period, pose/velocity/wrench come back as NaN so
         the caller's divergence check marks the trial failed.
         """
         m, d = self.model, self.data
         self.set_attractor(attractor)
-        self.set_stiffness(stiffness)
+        self.set_stiffness(stiffness, damping)
         self._slow_torques()
         warnings_before = int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
         v_start = self.tcp_velocity()[:3]
@@ -378,7 +385,7 @@ class PandaEmbodiment:
                     contact = True
         else:  # reference variants: Python work at every physics step, between MuJoCo's two step halves
             stiffness = np.asarray(stiffness, dtype=np.float64)
-            damping = damping_from_stiffness(stiffness)
+            damping = damping_from_stiffness(stiffness) if damping is None else np.asarray(damping, dtype=np.float64)
             for _ in range(self.n_substeps):
                 mujoco.mj_step1(m, d)
                 if self.slow_terms == "substep":

@@ -28,6 +28,8 @@ from dcm.control import (
     StiffnessLimits,
     attractor_from_demo,
     compliance_loss,
+    damping_from_stiffness,
+    damping_mass,
     filter_schedule,
     task_loss,
 )
@@ -124,6 +126,11 @@ class Simulator:
 
     Embodiments are built once per bowl and reused for every rollout (``reset`` between them). ``bowl``
     is the default; a demo naming another bowl gets (and caches) its own model.
+
+    The controller is consistent: the attractor is computed from the stiffness the controller applies
+    (after the low-pass filter) and from the same damping, so a stiffness change moves gains and attractor
+    together and leaves the contact force where the demo had it. ``damping="critical"`` (default) damps
+    critically for the embodiment's apparent Cartesian mass; ``"unit"`` is the paper's ``D = 2 sqrt(K)``.
     """
 
     def __init__(
@@ -137,11 +144,17 @@ class Simulator:
         limits: StiffnessLimits | None = None,
         bounds: DivergenceBounds | None = None,
         physics_dt: float = PHYSICS_DT_S,
+        damping: str = "critical",
     ) -> None:
         if not (1.0 <= control_hz <= 500.0):
             raise SimulatorError(f"control_hz = {control_hz} is outside [1, 500]")
         self.embodiment_name = embodiment
         self._cls = embodiment_class(embodiment)
+        try:
+            self.damping_mass = damping_mass(damping, getattr(self._cls, "apparent_mass", np.ones(6)))
+        except ValueError as err:
+            raise SimulatorError(str(err)) from err
+        self.damping = damping
         self.bowl = bowl or BowlSpec()
         self.domain = domain or DomainSpec()
         self.control_hz = float(control_hz)
@@ -201,8 +214,8 @@ class Simulator:
         if abs(demo.dt - self.dt) > 1e-9:
             raise SimulatorError(f"demo dt = {demo.dt} s does not match the simulator's control dt = {self.dt} s")
         self.limits.check(stiffness, where="stiffness")
-        x_attr = self.attractor(demo, stiffness)
         applied = filter_schedule(stiffness, self.dt, tau_s=self.stiffness_tau_s)
+        x_attr = self._attractor(demo, applied)
         start = demo.start_pose if demo.start_pose is not None else demo.spec.start_pose(self.control_hz)
         emb = self.embodiment_for(demo.spec.bowl)
         digest = (x_demo.tobytes(), force_demo.tobytes(), stiffness.tobytes())
@@ -228,15 +241,20 @@ class Simulator:
         )
 
     def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
-        """The attractor (H, 6) a rollout of ``stiffness`` uses: the paper's equation with the commanded K
-        and the embodiment's nominal Cartesian inertia. Robot-free tuning calls this to build model inputs."""
+        """The attractor (H, 6) a rollout of the commanded ``stiffness`` uses: the paper's equation with the
+        applied (filtered) K, the controller's damping and the embodiment's nominal Cartesian inertia.
+        Robot-free tuning calls this to build model inputs."""
+        return self._attractor(demo, filter_schedule(stiffness, self.dt, tau_s=self.stiffness_tau_s))
+
+    def _attractor(self, demo: Demo, applied: np.ndarray) -> np.ndarray:
         inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
         return attractor_from_demo(
             np.asarray(demo.x_demo, dtype=np.float64),
             np.asarray(demo.force_demo, dtype=np.float64),
-            np.asarray(stiffness, dtype=np.float64),
+            np.asarray(applied, dtype=np.float64),
             self.dt,
             inertia=inertia,
+            mass=self.damping_mass,
         )
 
     def constant_stiffness(self, demo: Demo, translational_Npm: Any, rotational: float = 20.0) -> np.ndarray:
@@ -277,12 +295,13 @@ class Simulator:
         warnings = [(emb.data.warning[w], mujoco.mjtWarning(w).name) for w in _BAD_STATE_WARNINGS]
         half_extent = bowl.half_extent_m
         failed, reason, failed_step = False, "", -1
+        damping = damping_from_stiffness(stiffness, self.damping_mass)
         for k in range(horizon):
             j = k - latency
             if j >= 0:
-                result = emb.step(attractor[j], stiffness[j])
+                result = emb.step(attractor[j], stiffness[j], damping[j])
             else:  # the first command has not arrived yet: keep holding the start pose
-                result = emb.step(start_pose, stiffness[0])
+                result = emb.step(start_pose, stiffness[0], damping[0])
             x_obs[k], v_obs[k] = result.pose, result.velocity
             f_contact[k], f_sensor[k] = result.force_contact, result.force_sensor
             contact[k] = result.in_contact

@@ -145,6 +145,8 @@ class ToolEmbodiment:
     name = "tool"
     # Cartesian inertia the attractor equation uses (Λ): the nominal tool mass, isotropic.
     attractor_inertia_kg = BODY_MASS_KG + TIP_MASS_KG
+    # Mass per axis that critical damping uses (the rotational axes are not actuated).
+    apparent_mass = (BODY_MASS_KG + TIP_MASS_KG,) * 3 + (1.0,) * 3
 
     def __init__(
         self,
@@ -185,17 +187,17 @@ class ToolEmbodiment:
         self.data.qfrc_applied[2] = self._gravity_comp_N
         mujoco.mj_forward(self.model, self.data)
 
-    def set_stiffness(self, stiffness: np.ndarray) -> None:
-        """Write K and D = 2 sqrt(K) of the translational axes into the actuators."""
+    def set_stiffness(self, stiffness: np.ndarray, damping: np.ndarray | None = None) -> None:
+        """Write K and D (default ``2 sqrt(K)``) of the translational axes into the actuators."""
         k = np.asarray(stiffness, dtype=np.float64)[:3]
         self._gain[:, 0] = k
         self._bias[:, 1] = -k
-        self._bias[:, 2] = -damping_from_stiffness(k)
+        self._bias[:, 2] = -(damping_from_stiffness(k) if damping is None else np.asarray(damping, np.float64)[:3])
 
-    def step(self, attractor: np.ndarray, stiffness: np.ndarray) -> StepResult:
-        """One control period: impedance towards ``attractor`` with ``stiffness``; averaged wrench."""
+    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None) -> StepResult:
+        """One control period: impedance towards ``attractor`` with ``stiffness`` and ``damping``; averaged wrench."""
         model, data = self.model, self.data
-        self.set_stiffness(stiffness)
+        self.set_stiffness(stiffness, damping)
         data.ctrl[:3] = np.asarray(attractor, dtype=np.float64)[:3]
         velocity_start = data.qvel[:3].copy()
         acc = self._sensor_acc
