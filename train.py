@@ -94,7 +94,7 @@ def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
         model_cfg["schedule"] = OmegaConf.to_container(cfg.schedule, resolve=True)
     model_cfg["net"] = OmegaConf.to_container(cfg.net, resolve=True)
     model = cls(data_spec=data_spec, **model_cfg)
-    model.fit_normalizers(*dm.train_stats())
+    model.fit_normalizers(*dm.train_arrays())
     return model
 
 

@@ -42,7 +42,7 @@ def main() -> None:
 
     model = DCM(net={"name": args.net, "d_model": args.d_model}, diffusion_steps=args.steps,
                 schedule={"name": "linear"})
-    model.fit_normalizers(-torch.ones(24), torch.ones(24), -torch.ones(6), torch.ones(6))
+    model.fit_normalizers(torch.rand(8, 16, 24) * 2 - 1, torch.rand(8, 16, 6) * 2 - 1)
     n_params = sum(p.numel() for p in model.net.parameters())
     opt = torch.optim.AdamW(model.net.parameters(), lr=1e-4)
     H = args.horizon

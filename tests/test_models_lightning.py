@@ -54,7 +54,7 @@ def trained(tiny_dm: DCMDataModule, tmp_path_factory: pytest.TempPathFactory) ->
         L.seed_everything(0)
         model = cls(net=dict(TINY_NET), lr=3e-3, warmup_steps=5, ema_decay=0.9,
                     data_spec={"control_hz": tiny_dm.control_hz}, **extra)
-        model.fit_normalizers(*tiny_dm.train_stats())
+        model.fit_normalizers(*tiny_dm.train_arrays())
         before = _fixed_loss(model, tiny_dm)
         trainer = _fit(model, tiny_dm, steps=40)
         path = out["dir"] / f"{name}.ckpt"

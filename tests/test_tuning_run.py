@@ -28,7 +28,7 @@ def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFa
     L.seed_everything(0)
     model = DCM(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2}, diffusion_steps=5,
                 data_spec={"control_hz": dm.control_hz})
-    model.fit_normalizers(*dm.train_stats())
+    model.fit_normalizers(*dm.train_arrays())
     trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=5, logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
                         num_sanity_val_steps=0)

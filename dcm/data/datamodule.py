@@ -4,10 +4,10 @@ Batches are dicts of raw, un-normalised float32 tensors in physical units:
 
 * ``cond``   (B, H, 24): per-step conditions ``x_demo(6) | F_demo(6) | x_attr(6) | K(6)`` —
   pose [m, rad] in the bowl frame, wrench [N, N·m], attractor pose [m, rad], stiffness diagonal [N/m, N·m/rad]
-  (channel names: :func:`dcm.models.configuration.cond_channel_names`);
+  (channel names: :func:`dcm.data.schema.cond_channel_names`);
 * ``target`` (B, H, 6): the observed contact wrench ``F_obs`` [N, N·m].
 
-Normalisation to [-1, 1] lives in the model (its statistics come from :meth:`DCMDataModule.train_stats`),
+Normalisation to [-1, 1] lives in the model (its statistics come from :meth:`DCMDataModule.train_arrays`),
 so that checkpoints carry it and fine-tuning keeps the pre-training statistics.
 """
 
@@ -21,8 +21,16 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from dcm.data.schema import CHANNELS, LoadedDataset, load_dataset
-from dcm.models.configuration import COND_FIELDS, TARGET_FIELD, cond_channel_names, target_channel_names
+from dcm.data.schema import (
+    CHANNELS,
+    COND_FIELDS,
+    TARGET_FIELD,
+    DatasetMismatchError,
+    LoadedDataset,
+    cond_channel_names,
+    load_dataset,
+    target_channel_names,
+)
 
 STAGES = ("pretrain", "finetune")
 
@@ -129,8 +137,6 @@ class DCMDataModule(L.LightningDataModule):
         self.attrs = dataset.attrs
         self.cond_channels, self.target_channels = dataset_channels(dataset)
         if self.cond_channels != cond_channel_names() or self.target_channels != target_channel_names():
-            from dcm.models.configuration import DatasetMismatchError
-
             raise DatasetMismatchError(
                 f"{self.path}: channels {self.cond_channels} -> {self.target_channels} differ from the "
                 f"{cond_channel_names()} -> {target_channel_names()} the models use")
@@ -169,13 +175,11 @@ class DCMDataModule(L.LightningDataModule):
             self.split("train")
         return float(self.attrs["control_hz"])
 
-    def train_stats(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per-channel (cond_min, cond_max, target_min, target_max) over the used training trajectories."""
+    def train_arrays(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The used training trajectories' raw conditions (N,H,24) and targets (N,H,6): what a model fits
+        its normalisers on."""
         train = self.split("train")
-        cond = train.cond.reshape(-1, train.cond.shape[-1])
-        target = train.target.reshape(-1, train.target.shape[-1])
-        return (cond.min(0).values.numpy(), cond.max(0).values.numpy(),
-                target.min(0).values.numpy(), target.max(0).values.numpy())
+        return train.cond, train.target
 
     def eval_set(self, split: str = "valid") -> TrajectoryDataset:
         """The fixed subset of a split that the metrics callback samples forces for."""

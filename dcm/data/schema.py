@@ -52,6 +52,35 @@ VECTOR_FIELDS: tuple[str, ...] = tuple(f for f in FIELDS if f != "contact")
 SCALARS: tuple[str, ...] = ("L_task", "L_comp")
 TRAJ_NAME_FORMAT = "traj_%06d"
 
+# What a contact model reads and predicts: per-step conditions and the target, in this order along the
+# channel axis. The data layout owns it (models read it); changing it invalidates checkpoints.
+COND_FIELDS: tuple[str, ...] = ("x_demo", "F_demo", "x_attr", "K")
+TARGET_FIELD = "F_obs"
+
+
+def cond_channel_names() -> list[str]:
+    """The 24 condition channel names, e.g. ``x_demo.x_m`` ... ``K.Krz_Nmprad``."""
+    return [f"{f}.{c}" for f in COND_FIELDS for c in CHANNELS[f]]
+
+
+def target_channel_names() -> list[str]:
+    """The 6 target channel names, ``F_obs.Fx_N`` ... ``F_obs.Tz_Nm``."""
+    return [f"{TARGET_FIELD}.{c}" for c in CHANNELS[TARGET_FIELD]]
+
+
+def cond_slice(field_name: str) -> slice:
+    """Where ``field_name`` sits along the condition channel axis (e.g. ``F_demo`` -> 6:12)."""
+    start = 0
+    for f in COND_FIELDS:
+        if f == field_name:
+            return slice(start, start + len(CHANNELS[f]))
+        start += len(CHANNELS[f])
+    raise KeyError(f"{field_name!r} is not a condition field; conditions are {COND_FIELDS}")
+
+
+class DatasetMismatchError(ValueError):
+    """A dataset's channels or control rate differ from those a model was trained on."""
+
 
 class DatasetError(ValueError):
     """A dataset file is unusable; the message names the file, the trajectory and the field."""

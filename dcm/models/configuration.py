@@ -10,21 +10,15 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping
 
-from dcm.data.schema import CHANNELS
-
-# Per-step conditions and target, in this order along the channel axis. Changing it invalidates checkpoints.
-COND_FIELDS: tuple[str, ...] = ("x_demo", "F_demo", "x_attr", "K")
-TARGET_FIELD = "F_obs"
-
-
-def cond_channel_names() -> list[str]:
-    """The 24 condition channel names, e.g. ``x_demo.x_m`` ... ``K.Krz_Nmprad``."""
-    return [f"{f}.{c}" for f in COND_FIELDS for c in CHANNELS[f]]
-
-
-def target_channel_names() -> list[str]:
-    """The 6 target channel names, ``F_obs.Fx_N`` ... ``F_obs.Tz_Nm``."""
-    return [f"{TARGET_FIELD}.{c}" for c in CHANNELS[TARGET_FIELD]]
+from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; re-exported for model users
+    COND_FIELDS,
+    TARGET_FIELD,
+    DatasetMismatchError,
+    cond_channel_names,
+    target_channel_names,
+)
+from dcm.models.diffusion import PREDICTION_TYPES
+from dcm.models.normalizer import NORMALIZATIONS
 
 
 class ModelInputError(ValueError):
@@ -33,10 +27,6 @@ class ModelInputError(ValueError):
 
 class CheckpointKindError(ModelInputError):
     """A checkpoint holds another model class than the one asked to load it."""
-
-
-class DatasetMismatchError(ModelInputError):
-    """A dataset's channels or control rate differ from those the model was trained on."""
 
 
 @dataclass
@@ -61,6 +51,9 @@ class DataSpec:
                 f"{source}: control rate {control_hz} Hz, but the model was trained at {self.control_hz} Hz")
 
 
+TARGETS = ("absolute", "residual")
+
+
 @dataclass
 class ForceModelConfig:
     """Fields shared by the DCM and the single-pass baseline."""
@@ -73,8 +66,14 @@ class ForceModelConfig:
     lr_schedule: str = "cosine"  # cosine (to 0 over the run) | constant
     ema_decay: float = 0.999  # 0 disables the EMA copy
     eval_batch_size: int = 256
+    target: str = "absolute"  # absolute: F_obs | residual: F_obs - F_demo (F_demo added back on prediction)
+    normalization: str = "minmax"  # minmax: train [min, max] -> [-1, 1] | zscore: mean ± 3 std -> [-1, 1]
 
     def __post_init__(self) -> None:
+        if self.target not in TARGETS:
+            raise ModelInputError(f"target must be one of {TARGETS}, got {self.target!r}")
+        if self.normalization not in NORMALIZATIONS:
+            raise ModelInputError(f"normalization must be one of {NORMALIZATIONS}, got {self.normalization!r}")
         if self.lr <= 0:
             raise ModelInputError(f"lr must be > 0, got {self.lr}")
         if not 0.0 <= self.ema_decay < 1.0:
@@ -119,9 +118,12 @@ SAMPLERS = ("ddpm", "ddim")
 
 @dataclass
 class DCMConfig(ForceModelConfig):
-    """The diffusion contact model: DDPM with epsilon-prediction over the normalised force trajectory."""
+    """The diffusion contact model: DDPM over the normalised force trajectory."""
 
     diffusion_steps: int = 30  # T, 1..100
+    # what the net outputs and the loss compares: sample (x0, the default: ε-prediction divides the net's
+    # error by sqrt(alpha_bar) ~ 0.03 in the first steps and ranked trials far worse), epsilon, v_prediction
+    prediction_type: str = "sample"
     # noise schedule: dcm.models.diffusion.NoiseSchedule fields (name, beta_start, ...); conf/schedule/*.yaml
     # omitted fields take NoiseSchedule's defaults (incl. clipping the x0 estimate, which sampling needs)
     schedule: dict[str, Any] = field(default_factory=lambda: {"name": "linear"})
@@ -141,6 +143,8 @@ class DCMConfig(ForceModelConfig):
         if self.sampling_steps is not None and not 1 <= int(self.sampling_steps) <= int(self.diffusion_steps):
             raise ModelInputError(
                 f"sampling_steps must be in 1..diffusion_steps={self.diffusion_steps}, got {self.sampling_steps}")
+        if self.prediction_type not in PREDICTION_TYPES:
+            raise ModelInputError(f"prediction_type must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if int(self.n_samples) < 1:
             raise ModelInputError(f"n_samples must be >= 1, got {self.n_samples}")
 

@@ -29,10 +29,12 @@ from dcm.models.configuration import (
     ModelInputError,
 )
 from dcm.models.nets import build_score_net
-from dcm.models.normalizer import MinMaxNormalizer
+from dcm.data.schema import cond_slice
+from dcm.models.normalizer import ChannelNormalizer
 
 COND_DIM = 24
 OUT_DIM = 6
+_F_DEMO = cond_slice("F_demo")
 KIND_KEY = "dcm_model_kind"  # checkpoint key naming the class that wrote it
 
 
@@ -66,8 +68,8 @@ class ForceModel(L.LightningModule):
         self.ema_net: nn.Module | None = None
         if self.cfg.ema_decay > 0:
             self.ema_net = copy.deepcopy(self.net).requires_grad_(False)
-        self.cond_norm = MinMaxNormalizer(COND_DIM)
-        self.target_norm = MinMaxNormalizer(OUT_DIM)
+        self.cond_norm = ChannelNormalizer(COND_DIM)
+        self.target_norm = ChannelNormalizer(OUT_DIM)
 
     # ------------------------------------------------------------------ checkpoint identity
     @classmethod
@@ -84,16 +86,31 @@ class ForceModel(L.LightningModule):
         checkpoint[KIND_KEY] = self.model_kind
 
     # ------------------------------------------------------------------ normalisation
-    def fit_normalizers(self, cond_min: np.ndarray, cond_max: np.ndarray, target_min: np.ndarray,
-                        target_max: np.ndarray) -> None:
-        """Set the [-1, 1] statistics (from the training split); they are saved with the weights."""
-        self.cond_norm.fit(cond_min, cond_max)
-        self.target_norm.fit(target_min, target_max)
+    def fit_normalizers(self, cond: Any, target: Any) -> None:
+        """Fit both normalisers on the training split's raw conditions (N,H,24) and targets F_obs (N,H,6), the
+        way ``cfg.normalization`` says, on the residual when ``cfg.target == "residual"``. They are saved
+        with the weights, so a fine-tuned model keeps its pre-training statistics."""
+        cond = torch.as_tensor(np.asarray(cond, dtype=np.float32))
+        target = torch.as_tensor(np.asarray(target, dtype=np.float32))
+        self.cond_norm.fit_data(cond, self.cfg.normalization)
+        self.target_norm.fit_data(self.model_target(cond, target), self.cfg.normalization)
+
+    def model_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
+        """What the net learns, in physical units: F_obs, or F_obs - F_demo for a residual model."""
+        if self.cfg.target == "residual":
+            return force - cond[..., _F_DEMO]
+        return force
+
+    def force_from_target(self, cond: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
+        """The inverse of ``model_target``: the wrench F_obs [N, N·m] from the net's (un-normalised) output."""
+        if self.cfg.target == "residual":
+            return value + cond[..., _F_DEMO]
+        return value
 
     def _require_fitted(self) -> None:
         if not (bool(self.cond_norm.fitted) and bool(self.target_norm.fitted)):
             raise ModelInputError(f"{type(self).__name__}: normalisers are not fitted; call fit_normalizers "
-                                  "with the training split's statistics (train.py does) before use")
+                                  "with the training split's data (train.py does) before use")
 
     @property
     def inference_net(self) -> nn.Module:
@@ -118,8 +135,13 @@ class ForceModel(L.LightningModule):
     def on_fit_start(self) -> None:
         self._require_fitted()
 
+    def normalized_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
+        """The training target in normalised units for raw conditions and F_obs."""
+        return self.target_norm.normalize(self.model_target(cond, force))
+
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        loss = self.loss(self.net, self.cond_norm.normalize(batch["cond"]), self.target_norm.normalize(batch["target"]))
+        loss = self.loss(self.net, self.cond_norm.normalize(batch["cond"]),
+                         self.normalized_target(batch["cond"], batch["target"]))
         self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=batch["cond"].shape[0])
         return loss
 
@@ -127,7 +149,7 @@ class ForceModel(L.LightningModule):
         # A fixed generator per batch makes the (noisy) diffusion loss comparable across epochs.
         gen = torch.Generator(device=self.device).manual_seed(10_000 + batch_idx)
         loss = self.loss(self.inference_net, self.cond_norm.normalize(batch["cond"]),
-                         self.target_norm.normalize(batch["target"]), generator=gen)
+                         self.normalized_target(batch["cond"], batch["target"]), generator=gen)
         self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=batch["cond"].shape[0],
                  sync_dist=True)
         return loss
@@ -192,6 +214,14 @@ class ForceModel(L.LightningModule):
         return torch.cat(means), torch.cat(stds)
 
     @torch.no_grad()
+    def predict_raw(self, cond: torch.Tensor, n_samples: int | None = None,
+                    generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and spread of the wrench [N, N·m] (B,H,6) for raw conditions (B,H,24) on the model's device."""
+        mean_n, std_n = self.predict_normalized(self.cond_norm.normalize(cond), n_samples, generator)
+        mean = self.force_from_target(cond, self.target_norm.unnormalize(mean_n))
+        return mean, self.target_norm.unnormalize_std(std_n)
+
+    @torch.no_grad()
     def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
                        generator: torch.Generator | None = None) -> tuple[Any, Any]:
         """Predict the contact wrench F_obs for raw (un-normalised) inputs.
@@ -225,8 +255,7 @@ class ForceModel(L.LightningModule):
             cond = cond[None]
         if not torch.isfinite(cond).all():
             raise ModelInputError("predict_forces: inputs contain NaN or inf")
-        mean_n, std_n = self.predict_normalized(self.cond_norm.normalize(cond), n_samples, generator)
-        mean, std = self.target_norm.unnormalize(mean_n), self.target_norm.unnormalize_std(std_n)
+        mean, std = self.predict_raw(cond, n_samples, generator)
         if single:
             mean, std = mean[0], std[0]
         if as_numpy:
@@ -235,10 +264,11 @@ class ForceModel(L.LightningModule):
 
 
 class DCM(ForceModel):
-    """DDPM with epsilon-prediction over the normalised F_obs trajectory, conditioned per step.
+    """DDPM over the normalised F_obs trajectory (or its residual from F_demo), conditioned per step.
 
-    Training draws a uniform step t and regresses the injected noise; prediction runs ancestral DDPM over
-    all T steps (or DDIM over ``sampling_steps``) from pure noise, ``n_samples`` times, and averages.
+    Training draws a uniform step t and regresses x0, the injected noise or v (``prediction_type``);
+    prediction runs ancestral DDPM over all T steps (or DDIM over ``sampling_steps``) from pure noise,
+    ``n_samples`` times, and averages.
     """
 
     model_kind = "dcm"
@@ -248,9 +278,9 @@ class DCM(ForceModel):
     def __init__(self, data_spec: dict[str, Any] | None = None, **config: Any) -> None:
         super().__init__(data_spec=data_spec, **config)
         self.noise_schedule = diffusion.NoiseSchedule(**self.cfg.schedule)
-        self.train_scheduler = diffusion.make_scheduler("ddpm", self.noise_schedule, self.cfg.diffusion_steps)
-        self.sample_scheduler = diffusion.make_scheduler(self.cfg.sampler, self.noise_schedule,
-                                                         self.cfg.diffusion_steps)
+        T, kind = self.cfg.diffusion_steps, self.cfg.prediction_type
+        self.train_scheduler = diffusion.make_scheduler("ddpm", self.noise_schedule, T, kind)
+        self.sample_scheduler = diffusion.make_scheduler(self.cfg.sampler, self.noise_schedule, T, kind)
         # validates DDIM's divisor rule now rather than at the first validation
         diffusion.check_inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
 

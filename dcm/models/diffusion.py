@@ -3,7 +3,9 @@
 Conventions
 - Timesteps are 0-based, t in {0..T-1} (diffusers' indexing; the paper's step i = t + 1). The score net
   receives exactly these integers as `step`.
-- epsilon-prediction: the net predicts the noise that `add_noise` injected.
+- Prediction types (diffusers' names): "epsilon", the net predicts the noise that `add_noise` injected;
+  "sample", it predicts x0 itself; "v_prediction", v = sqrt(ab) noise - sqrt(1 - ab) x0. The loss compares
+  the net's output with that target, and the scheduler turns it into the next sample.
 - Every schedule is rescaled with T so the forward process ends near pure noise (alpha_bar_T <= ~1e-3)
   for every T in 1..100. The textbook linear endpoints (1e-4, 0.02) were tuned for T=1000: at T=30 they
   leave alpha_bar_T ~ 0.74, so the sampler would start from a distribution the net never saw.
@@ -25,6 +27,7 @@ from diffusers.utils.torch_utils import randn_tensor
 
 __all__ = [
     "SCHEDULES",
+    "PREDICTION_TYPES",
     "MAX_BETA",
     "ScheduleError",
     "NoiseSchedule",
@@ -35,11 +38,13 @@ __all__ = [
     "sample_timesteps",
     "check_inference_steps",
     "diffusion_loss",
+    "training_target",
     "sample",
     "sample_many",
 ]
 
 SCHEDULES = ("linear", "cosine", "sigmoid", "scaled_linear")
+PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 _SCHEDULE_ALIASES = {"squaredcos_cap_v2": "cosine", "squared_cosine": "cosine", "squaredcos": "cosine"}
 MAX_BETA = 0.999  # the cap diffusers and Nichol & Dhariwal use; keeps 1/sqrt(alpha_t) finite
 MAX_T = 100
@@ -169,25 +174,28 @@ def _as_schedule(schedule: str | NoiseSchedule | dict) -> NoiseSchedule:
 
 
 def make_scheduler(
-    kind: Literal["ddpm", "ddim"], schedule: str | NoiseSchedule | dict = "linear", T: int = 30
+    kind: Literal["ddpm", "ddim"], schedule: str | NoiseSchedule | dict = "linear", T: int = 30,
+    prediction_type: str = "epsilon",
 ) -> Scheduler:
     """A diffusers scheduler over our betas, with every default that matters pinned.
 
     - `trained_betas` carries the T-rescaled betas (`beta_schedule` is then ignored by diffusers).
-    - `prediction_type="epsilon"`, `thresholding=False`, clipping per `NoiseSchedule.clip_sample_range`.
+    - `prediction_type` as given, `thresholding=False`, clipping per `NoiseSchedule.clip_sample_range`.
     - `timestep_spacing="trailing"` + `steps_offset=0`: a shortened chain starts at t = T-1 (pure noise)
       and ends at t = -1; "leading" would start part-way down the chain.
     - DDIM: `set_alpha_to_one=True` so its last step returns the x0 estimate;
       `rescale_betas_zero_snr=False` (our alpha_bar_T is already ~0, and exact zero breaks epsilon-prediction).
     """
     sched, T = _as_schedule(schedule), _check_T(T)
+    if prediction_type not in PREDICTION_TYPES:
+        raise ScheduleError(f"prediction_type must be one of {PREDICTION_TYPES}, got {prediction_type!r}")
     betas = sched.betas(T).numpy()
     clip = sched.clip_sample_range is not None
     common = dict(
         num_train_timesteps=T,
         trained_betas=betas,
         beta_schedule="linear",
-        prediction_type="epsilon",
+        prediction_type=prediction_type,
         clip_sample=clip,
         clip_sample_range=float(sched.clip_sample_range) if clip else 1.0,
         thresholding=False,
@@ -219,11 +227,24 @@ def sample_timesteps(scheduler: Scheduler, batch: int, device: torch.device | st
 def diffusion_loss(
     net: ScoreNet, cond: torch.Tensor, x0: torch.Tensor, scheduler: Scheduler, generator=None, reduction: str = "mean"
 ) -> torch.Tensor:
-    """The epsilon-matching objective: MSE between injected and predicted noise at a uniform random t."""
+    """MSE between the net's output and its target (noise, x0 or v, per the scheduler's prediction type)
+    at a uniform random t."""
     t = sample_timesteps(scheduler, x0.shape[0], x0.device, generator)
     noise = randn_tensor(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
-    eps = net(cond, add_noise(scheduler, x0, noise, t), t)
-    return torch.nn.functional.mse_loss(eps, noise, reduction=reduction)
+    output = net(cond, add_noise(scheduler, x0, noise, t), t)
+    return torch.nn.functional.mse_loss(output, training_target(scheduler, x0, noise, t), reduction=reduction)
+
+
+def training_target(scheduler: Scheduler, x0: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
+    """What the net must output for x_t = add_noise(x0, noise, t), per the scheduler's prediction type."""
+    kind = scheduler.config.prediction_type
+    if kind == "epsilon":
+        return noise
+    if kind == "sample":
+        return x0
+    ab = scheduler.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[timesteps.to(x0.device).long()]
+    ab = ab.reshape(-1, *([1] * (x0.dim() - 1)))
+    return ab.sqrt() * noise - (1.0 - ab).sqrt() * x0  # v_prediction
 
 
 def check_inference_steps(scheduler: Scheduler, num_inference_steps: int | None) -> int:
@@ -264,8 +285,8 @@ def sample(
     x = randn_tensor(tuple(shape), generator=generator, device=cond.device, dtype=cond.dtype)
     batch = torch.ones(shape[0], dtype=torch.long, device=cond.device)
     for t in scheduler.timesteps:
-        eps = net(cond, x, batch * t)
-        x = scheduler.step(eps, t, x, generator=generator).prev_sample
+        output = net(cond, x, batch * t)
+        x = scheduler.step(output, t, x, generator=generator).prev_sample
     return x
 
 

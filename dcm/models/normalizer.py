@@ -1,4 +1,7 @@
-"""Per-channel min-max normalisation to [-1, 1], kept as module buffers so it travels inside checkpoints.
+"""Per-channel affine normalisation, kept as module buffers so it travels inside checkpoints.
+
+Two ways to fit it: ``minmax`` maps the train split's [min, max] to [-1, 1] (the paper's); ``zscore`` maps
+mean ± 3 std to [-1, 1], so that a few force spikes do not squeeze every other value towards 0.
 
 The model, not the data pipeline, owns the normaliser: a fine-tuned model keeps the statistics it was
 pre-trained with, and ``predict_forces`` accepts raw inputs in physical units.
@@ -13,10 +16,12 @@ from torch import nn
 # A channel whose train-split range is below this is treated as constant (e.g. the tool's orientation,
 # the fixed rotational stiffness): it maps to 0 and deviations pass through unscaled instead of exploding.
 MIN_RANGE = 1e-6
+NORMALIZATIONS = ("minmax", "zscore")
+ZSCORE_SPAN = 3.0  # zscore maps mean ± ZSCORE_SPAN std to [-1, 1]
 
 
-class MinMaxNormalizer(nn.Module):
-    """Maps each channel of (..., C) tensors from [min, max] to [-1, 1]; the inverse maps back."""
+class ChannelNormalizer(nn.Module):
+    """Maps each channel of (..., C) tensors by ``(x - center) * scale``; the inverse maps back."""
 
     center: torch.Tensor
     scale: torch.Tensor
@@ -29,7 +34,7 @@ class MinMaxNormalizer(nn.Module):
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
 
     @torch.no_grad()
-    def fit(self, minimum: np.ndarray | torch.Tensor, maximum: np.ndarray | torch.Tensor) -> "MinMaxNormalizer":
+    def fit(self, minimum: np.ndarray | torch.Tensor, maximum: np.ndarray | torch.Tensor) -> "ChannelNormalizer":
         """Set the statistics from per-channel minima and maxima (C,)."""
         lo = torch.as_tensor(np.asarray(minimum, dtype=np.float64)).reshape(-1)
         hi = torch.as_tensor(np.asarray(maximum, dtype=np.float64)).reshape(-1)
@@ -48,10 +53,15 @@ class MinMaxNormalizer(nn.Module):
         return self
 
     @torch.no_grad()
-    def fit_data(self, data: np.ndarray | torch.Tensor) -> "MinMaxNormalizer":
-        """Set the statistics from stacked samples (..., C)."""
+    def fit_data(self, data: np.ndarray | torch.Tensor, mode: str = "minmax") -> "ChannelNormalizer":
+        """Set the statistics from stacked samples (..., C): ``minmax`` or ``zscore`` (see the module)."""
         flat = torch.as_tensor(np.asarray(data, dtype=np.float64)).reshape(-1, self.n_channels)
-        return self.fit(flat.min(0).values, flat.max(0).values)
+        if mode == "minmax":
+            return self.fit(flat.min(0).values, flat.max(0).values)
+        if mode != "zscore":
+            raise ValueError(f"normalization = {mode!r}; expected one of {NORMALIZATIONS}")
+        mean, std = flat.mean(0), flat.std(0)
+        return self.fit(mean - ZSCORE_SPAN * std, mean + ZSCORE_SPAN * std)
 
     def normalize(self, x: torch.Tensor) -> torch.Tensor:
         return (x - self.center) * self.scale
