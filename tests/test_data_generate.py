@@ -158,3 +158,62 @@ def test_search_strategies_are_seeded() -> None:
 def test_missing_embodiment_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(GenerationError, match="embodiment='nope'"):
         generate(compose_config("tiny", [f"out={tmp_path / 'x.h5'}", "embodiment=nope", "progress=false"]))
+
+
+# -- the diverse presets (spirals + random curves) ------------------------------------------------------------
+def _plan(preset: str) -> list:
+    from omegaconf import OmegaConf
+
+    from dcm.data.presets import plan_demos
+
+    return plan_demos(OmegaConf.to_container(compose_config(preset).dataset, resolve=True), 0)
+
+
+def _skill_splits(jobs: list) -> dict[tuple[str, str], int]:
+    counts: dict[tuple[str, str], int] = {}
+    for job in jobs:
+        for split in set(job.trial_splits):
+            counts[(job.skill, split)] = counts.get((job.skill, split), 0) + 1
+    return counts
+
+
+def test_diverse_preset_plan() -> None:
+    jobs = _plan("diverse")
+    assert _skill_splits(jobs) == {("spiral", "train"): 36, ("spiral", "valid"): 4, ("curve", "train"): 36,
+                                   ("curve", "valid"): 4, ("wavelike", "test"): 1, ("line", "test"): 1}
+    assert sum(job.n_trials for job in jobs) == 80 * 20 + 2 * 30  # about the cost of sim (80 x 20 + 30)
+    sim = _plan("sim")
+    sim_spirals = [job.spec for job in sim if job.skill == "spiral"]
+    assert all(job.spec in sim_spirals for job in jobs if job.skill == "spiral")  # a subset of sim's spirals
+    assert [j.spec for j in jobs if j.skill == "wavelike"] == [j.spec for j in sim if j.skill == "wavelike"]
+    curves = [job.spec for job in jobs if job.skill == "curve"]
+    assert sorted(c["params"]["seed"] for c in curves) == list(range(40))  # one curve per skill
+    assert {(c["bowl"]["rim_radius_m"], c["bowl"]["depth_m"]) for c in curves} == \
+        {(s["bowl"]["rim_radius_m"], s["bowl"]["depth_m"]) for s in sim_spirals}  # the same 20 bowls
+
+
+def test_preset_axes_zip_and_enumerate_are_checked() -> None:
+    from dcm.data.presets import PresetError, expand_skill
+
+    skill = {"spec": {"family": "curve"}, "vary": [{"keys": ["params.harmonics", "bowl.rim_radius_m"],
+                                                     "values": [[2, 0.1], [4, 0.12]]}],
+             "enumerate": {"key": "params.seed", "start": 5}}
+    specs = expand_skill(skill, {}, "s")
+    assert [(s["params"], s["bowl"]["rim_radius_m"]) for s in specs] == \
+        [({"harmonics": 2, "seed": 5}, 0.1), ({"harmonics": 4, "seed": 6}, 0.12)]
+    with pytest.raises(PresetError, match=r"s.vary\[0\].values\[1\] = \[4\] must list 2 values"):
+        expand_skill({**skill, "vary": [{"keys": ["a", "b"], "values": [[1, 2], [4]]}]}, {}, "s")
+    with pytest.raises(PresetError, match=r"s.vary\[0\] needs 'key'"):
+        expand_skill({**skill, "vary": [{"key": "a", "keys": ["b"], "values": [1]}]}, {}, "s")
+    with pytest.raises(PresetError, match=r"s.enumerate.start = -1 must be an integer >= 0"):
+        expand_skill({**skill, "enumerate": {"key": "params.seed", "start": -1}}, {}, "s")
+
+
+def test_tiny_diverse_dataset(tmp_path: Path) -> None:
+    out = generate(compose_config("tiny_diverse", [f"out={tmp_path / 'td.h5'}", "workers=1", "progress=false"]))
+    skills = {split: {m["skill"] for m in load_dataset(out, split=split).meta} for split in ("train", "valid", "test")}
+    assert skills == {"train": {"spiral", "curve"}, "valid": {"spiral", "curve"}, "test": {"wavelike", "line"}}
+    test = load_dataset(out, split="test")
+    assert len(test) == 6 and test.horizon == 40
+    curve = next(m for m in load_dataset(out, split="train").meta if m["skill"] == "curve")["demo"]
+    assert curve["family"] == "curve" and curve["params"]["press_range_m"] == [0.005, 0.02]

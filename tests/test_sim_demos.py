@@ -1,11 +1,14 @@
 """Demo specs: families, YAML/JSON round trips, waypoint files and their errors."""
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from dcm.sim.demos import (
+    CURVE_EXTENT,
+    CURVE_HARMONICS,
     DemoSpec,
     DemoSpecError,
     PathOutsideBowlError,
@@ -17,7 +20,7 @@ from dcm.sim.geometry import BowlSpec
 REPO = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize("family", ["spiral", "wavelike", "line"])
+@pytest.mark.parametrize("family", ["spiral", "wavelike", "line", "curve"])
 def test_design_families_stay_inside_and_approach_smoothly(family: str) -> None:
     spec = DemoSpec(family=family, press_m=0.012)
     path = spec.path(20.0)
@@ -114,3 +117,98 @@ def test_bad_spec_fields_are_named(tmp_path: Path) -> None:
         DemoSpec.load(bad)
     with pytest.raises(DemoSpecError, match="bowl preset 'huge' not found"):
         DemoSpec.from_dict({"family": "line", "bowl": "huge"})
+
+
+# -- the curve family --------------------------------------------------------------------------------------
+CURVE = {"speed_mps": [0.02, 0.10], "press_range_m": [0.005, 0.02]}
+BOWLS = sorted(p.stem for p in (REPO / "conf" / "bowl").glob("*.yaml"))
+
+
+def _curve(seed: int, **params) -> DemoSpec:
+    return DemoSpec(family="curve", params={"seed": seed, **CURVE, **params})
+
+
+def test_curve_is_seeded_and_round_trips(tmp_path: Path) -> None:
+    spec = _curve(7, harmonics=4)
+    path = spec.path()
+    assert np.array_equal(path, _curve(7, harmonics=4).path())  # same seed -> identical arrays
+    assert not np.allclose(path, _curve(8, harmonics=4).path())
+    back = DemoSpec.from_dict(json.loads(spec.to_json()))
+    assert back == spec and np.array_equal(back.path(), path)
+    spec.save(tmp_path / "curve.yaml")
+    assert np.array_equal(DemoSpec.load(tmp_path / "curve.yaml").path(), path)
+    # a tuple range is stored as a list, so the JSON round trip compares equal
+    as_tuple = _curve(1, speed_mps=(0.03, 0.05))
+    assert DemoSpec.from_dict(json.loads(as_tuple.to_json())).params["speed_mps"] == [0.03, 0.05]
+
+
+@pytest.mark.parametrize("bowl", BOWLS)
+def test_curve_stays_inside_the_rim_fraction(bowl: str) -> None:
+    for seed in range(50):
+        harmonics = CURVE_HARMONICS[0] + seed % CURVE_HARMONICS[1]
+        extent = (0.5, 0.7, CURVE_EXTENT[1])[seed % 3]
+        spec = DemoSpec.from_dict({"family": "curve", "bowl": bowl, "params": {
+            "seed": seed, "harmonics": harmonics, "extent": extent, "speed_mps": [0.1, 0.3]}})
+        xy = spec.path()[:, :2]
+        a, b = spec.bowl.semi_axes_m
+        rho = np.hypot(xy[:, 0] / a, xy[:, 1] / b)  # 1 on the rim, for elliptic bowls too
+        assert rho.max() <= extent + 1e-6, (bowl, seed)
+        assert np.all(spec.bowl.contains(xy[:, 0], xy[:, 1]))
+
+
+def test_curve_speed_and_press_are_drawn_in_their_ranges() -> None:
+    speeds, presses = [], []
+    for seed in range(20):
+        spec = _curve(seed)
+        draws = spec.curve_draws()
+        path = spec.path(20.0)
+        wipe_s = spec.duration_s - spec.approach_s - 0.05
+        step = np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1)
+        assert step.sum() / wipe_s == pytest.approx(draws["speed_mps"], rel=0.02)  # mean speed over the wipe
+        assert np.allclose(path[20:, 2], draws["press_m"])
+        # starts from rest: still during the approach, then a smooth start
+        assert np.allclose(path[:21, :2], path[0, :2]) and step[20] < 0.2 * step.max()
+        speeds.append(draws["speed_mps"])
+        presses.append(draws["press_m"])
+    assert 0.02 <= min(speeds) < max(speeds) <= 0.10 and 0.005 <= min(presses) < max(presses) <= 0.02
+    assert np.allclose(_curve(0, press_range_m=None).path()[20:, 2], 0.01)  # no range: the spec's press_m
+    # independent streams: a new speed range keeps the shape draw
+    assert np.array_equal(_curve(3).curve_draws()["coeffs"], _curve(3, speed_mps=[0.05, 0.06]).curve_draws()["coeffs"])
+
+
+@pytest.mark.parametrize(
+    ("params", "pattern"),
+    [
+        ({"seed": -1}, r"params.seed = -1 must be an integer in \[0, 4294967295\]"),
+        ({"seed": 1.5}, r"params.seed = 1.5 must be an integer"),
+        ({"seed": True}, r"params.seed = True must be an integer"),
+        ({"harmonics": 0}, r"params.harmonics = 0 must be an integer in \[1, 8\]"),
+        ({"harmonics": 9}, r"params.harmonics = 9 must be an integer in \[1, 8\]"),
+        ({"extent": 1.2}, r"params.extent = 1.2 must be a number in \[0.05, 0.95\] \(fraction of the rim radius\)"),
+        ({"extent": "big"}, r"params.extent = 'big' must be a number in"),
+        ({"speed_mps": [0.1, 0.05]}, r"params.speed_mps = \[0.1, 0.05\] must be \[low, high\] m/s with 0.005 <= low"),
+        ({"speed_mps": [0.0, 0.1]}, r"params.speed_mps = \[0.0, 0.1\] must be"),
+        ({"speed_mps": 0.05}, r"params.speed_mps = 0.05 must be \[low, high\]"),
+        ({"press_range_m": [0.01, 0.2]}, r"params.press_range_m = \[0.01, 0.2\] must be \[low, high\] m with -0.05"),
+        ({"press_range_m": [0.02, 0.01]}, r"params.press_range_m = \[0.02, 0.01\]"),
+        ({"radius": 0.1}, r"unknown curve parameter\(s\) \['radius'\]"),
+    ],
+    ids=["seed-negative", "seed-float", "seed-bool", "harmonics-0", "harmonics-9", "extent-big", "extent-text",
+         "speed-reversed", "speed-zero", "speed-scalar", "press-deep", "press-reversed", "unknown"],
+)
+def test_bad_curve_parameters_are_named(params: dict, pattern: str) -> None:
+    with pytest.raises(DemoSpecError, match=pattern):
+        DemoSpec(family="curve", params=params)
+    assert issubclass(DemoSpecError, ValueError)
+
+
+def test_short_curve_demo_records_on_the_tool() -> None:
+    from dcm.sim.rollout import Simulator
+
+    spec = DemoSpec(family="curve", params={"seed": 5, **CURVE}, duration_s=2.0, approach_s=0.4,
+                    bowl=BowlSpec(rim_radius_m=0.12, depth_m=0.03, hfield_res=64))
+    demo = Simulator(embodiment="tool", bowl=spec.bowl, control_hz=20.0, seed=0).record_demo(spec)
+    assert demo.x_demo.shape == demo.force_demo.shape == (40, 6)
+    assert np.all(np.isfinite(demo.force_demo)) and demo.contact[15:].all()
+    assert np.abs(demo.x_demo[15:, :2] - spec.path()[15:, :2]).max() < 0.01  # follows the curve
+    assert demo.force_demo[15:, 2].mean() > 1.0  # pressing down

@@ -61,21 +61,46 @@ def _set_dotted(spec: dict[str, Any], dotted: str, value: Any) -> dict[str, Any]
     return deep_merge(spec, patch)
 
 
+def _axis_settings(axis: Mapping[str, Any], where: str) -> list[list[tuple[str, Any]]]:
+    """One ``vary`` axis -> its settings, each a list of (dotted key, value).
+
+    ``{key: k, values: [a, b]}`` sets one key; ``{keys: [k1, k2], values: [[a1, a2], [b1, b2]]}`` sets several
+    keys together (zipped, e.g. a subset of another preset's combinations)."""
+    values = axis.get("values")
+    if not values or not isinstance(values, list) or ("key" in axis) == ("keys" in axis):
+        raise PresetError(f"{where} needs 'key' (or 'keys') and a non-empty 'values' list")
+    if "key" in axis:
+        return [[(str(axis["key"]), v)] for v in values]
+    keys = [str(k) for k in axis["keys"]]
+    for j, row in enumerate(values):
+        if not isinstance(row, list) or len(row) != len(keys):
+            raise PresetError(f"{where}.values[{j}] = {row!r} must list {len(keys)} values, one per key {keys}")
+    return [list(zip(keys, row)) for row in values]
+
+
 def expand_skill(skill: Mapping[str, Any], defaults: Mapping[str, Any], where: str) -> list[dict[str, Any]]:
-    """Cartesian product of the skill's ``vary`` axes applied to its base demo spec."""
+    """Cartesian product of the skill's ``vary`` axes applied to its base demo spec.
+
+    ``enumerate: {key: params.seed, start: 0}`` then sets ``key`` to start, start + 1, ... across the
+    expanded specs, so that e.g. every random curve of the group gets its own seed."""
     base = deep_merge(defaults, skill.get("spec", {}))
     axes = skill.get("vary", []) or []
-    value_lists = []
-    for i, axis in enumerate(axes):
-        if "key" not in axis or not axis.get("values"):
-            raise PresetError(f"{where}.vary[{i}] needs 'key' and a non-empty 'values' list")
-        value_lists.append([(axis["key"], v) for v in axis["values"]])
+    value_lists = [_axis_settings(axis, f"{where}.vary[{i}]") for i, axis in enumerate(axes)]
     specs = []
     for combo in itertools.product(*value_lists):
         spec = base
-        for key, value in combo:
+        for key, value in itertools.chain.from_iterable(combo):
             spec = _set_dotted(spec, key, value)
         specs.append(spec)
+    numbering = skill.get("enumerate")
+    if numbering is not None:
+        if not isinstance(numbering, Mapping) or "key" not in numbering:
+            raise PresetError(f"{where}.enumerate = {numbering!r} must be a mapping "
+                              "{key: <dotted key>, start: <int>}")
+        start = numbering.get("start", 0)
+        if isinstance(start, bool) or not isinstance(start, int) or start < 0:
+            raise PresetError(f"{where}.enumerate.start = {start!r} must be an integer >= 0")
+        specs = [_set_dotted(spec, str(numbering["key"]), start + k) for k, spec in enumerate(specs)]
     return specs
 
 
