@@ -7,8 +7,13 @@
     python train.py resume=<run_dir>                      # continue a killed run from <run_dir>/checkpoints/last.ckpt
     python train.py resume=<run_dir> trainer.max_epochs=400   # ... or extend it (key=value overrides apply)
 
-Each run directory holds config.yaml (resolved), tb/ (TensorBoard), checkpoints/ (top-k on val/R + last.ckpt)
+Each run directory holds config.yaml (resolved), tb/ (TensorBoard), checkpoints/ (top-k on checkpoint.monitor, default val/R_within, + last.ckpt)
 and summary.json.
+
+Every split the run will read (train, valid, and test when ``test_after_fit``) is validated before fitting.
+A user error (bad setting, unusable dataset or checkpoint, a missing resume folder, an accelerator this
+machine lacks) ends in one ``error: ...`` line on stderr and exit code 2; ``HYDRA_FULL_ERROR=1`` shows the
+traceback instead.
 """
 
 from __future__ import annotations
@@ -16,18 +21,23 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import hydra
 import lightning as L
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from hydra.utils import get_class, to_absolute_path
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
+from dcm.cli import check_accelerator
 from dcm.data.datamodule import DCMDataModule
+from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
 from dcm.models.callbacks import ForceMetricsCallback, RunETACallback
 from dcm.models.configuration import CheckpointKindError
@@ -43,6 +53,11 @@ FINETUNE_FIELDS = ("lr", "weight_decay", "warmup_steps", "lr_schedule", "ema_dec
 
 class TrainConfigError(ValueError):
     """An inconsistent train.py configuration (stage, init_from, resume ...)."""
+
+
+# What a user can get wrong (settings, files): reported in one line. Every dcm input error is a ValueError
+# (TrainConfigError, DatasetError, DataModuleError, CheckpointKindError, DeviceError ...).
+USER_ERRORS = (ValueError, GenerationError)
 
 
 def dataset_path(data_cfg: DictConfig) -> Path:
@@ -110,6 +125,7 @@ def _has_split(path: Path, split: str) -> bool:
 
 def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     """Fit (or resume) one run in ``run_dir``; returns the summary also written to summary.json."""
+    check_accelerator(cfg.trainer.get("accelerator", "auto"))
     run_dir.mkdir(parents=True, exist_ok=True)
     ckpt_dir = run_dir / "checkpoints"
     last = ckpt_dir / "last.ckpt"
@@ -126,11 +142,13 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
 
     dm = build_datamodule(cfg, path)
     dm.setup("fit")
+    if cfg.test_after_fit and _has_split(path, "test"):
+        dm.setup("test")  # validated now: a NaN in the test split must not surface after the whole fit
     model = build_model(cfg, dm)
 
     checkpoint = ModelCheckpoint(dirpath=ckpt_dir, monitor=cfg.checkpoint.monitor, mode=cfg.checkpoint.mode,
                                  save_top_k=int(cfg.checkpoint.save_top_k), save_last=False,
-                                 filename="epoch{epoch:03d}-R{val/R:.3f}", auto_insert_metric_name=False)
+                                 filename=cfg.checkpoint.filename, auto_insert_metric_name=False)
     # last.ckpt after every training epoch (not only every validation), so a killed run loses little
     last_checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename="last", monitor=None, save_top_k=1,
                                       every_n_epochs=1, save_on_train_epoch_end=True, enable_version_counter=False)
@@ -161,15 +179,30 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     return summary
 
 
+def check_resume_dir(run_dir: Path) -> Path:
+    """The run directory to resume, refused unless it holds a saved config and ``checkpoints/last.ckpt``."""
+    if not run_dir.is_dir():
+        raise TrainConfigError(f"resume={run_dir}: no such directory")
+    if not (run_dir / "config.yaml").is_file():
+        raise TrainConfigError(f"resume={run_dir}: no config.yaml there (is it a train.py run directory?)")
+    if not (run_dir / "checkpoints" / "last.ckpt").is_file():
+        raise TrainConfigError(f"resume={run_dir}: no checkpoints/last.ckpt to resume from")
+    return run_dir
+
+
+def check_resume_argument(argv: Sequence[str]) -> None:
+    """Check ``resume=<dir>`` before Hydra starts, so a wrong folder leaves no new outputs/train/<time>/ behind."""
+    for arg in argv:
+        if arg.startswith("resume="):
+            value = arg.split("=", 1)[1].strip("'\"")
+            if value and value != "null":
+                check_resume_dir(Path(value).expanduser().absolute())
+
+
 def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
     """The saved config and directory of the run to resume."""
-    run_dir = Path(to_absolute_path(str(cfg.resume)))
+    run_dir = check_resume_dir(Path(to_absolute_path(str(cfg.resume))))
     saved = run_dir / "config.yaml"
-    last = run_dir / "checkpoints" / "last.ckpt"
-    if not saved.is_file():
-        raise TrainConfigError(f"resume={run_dir}: no config.yaml there (is it a train.py run directory?)")
-    if not last.is_file():
-        raise TrainConfigError(f"resume={run_dir}: no checkpoints/last.ckpt to resume from")
     resumed = OmegaConf.load(saved)
     # other key=value overrides on the command line apply on top, e.g. trainer.max_epochs=200 to extend a run
     extra = [o for o in HydraConfig.get().overrides.task if not o.startswith(("resume=", "hydra."))]
@@ -186,14 +219,26 @@ def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
 
 @hydra.main(version_base=None, config_path="conf", config_name="train")
 def main(cfg: DictConfig) -> float | None:
-    if cfg.get("resume"):
-        cfg, run_dir = resolve_resume(cfg)
-    else:
-        run_dir = Path(HydraConfig.get().runtime.output_dir)
-    summary = train(cfg, run_dir)
+    try:
+        if cfg.get("resume"):
+            cfg, run_dir = resolve_resume(cfg)
+        else:
+            run_dir = Path(HydraConfig.get().runtime.output_dir)
+        summary = train(cfg, run_dir)
+    except USER_ERRORS as err:
+        # a sweep keeps Hydra's handling (the job is marked failed, the others still run)
+        if os.environ.get("HYDRA_FULL_ERROR") == "1" or HydraConfig.get().mode == RunMode.MULTIRUN:
+            raise
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
     score = summary.get("best_score")
     return None if score is None or not math.isfinite(score) else float(score)  # for Hydra sweepers
 
 
 if __name__ == "__main__":
+    try:
+        check_resume_argument(sys.argv[1:])
+    except TrainConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
     main()

@@ -1,7 +1,13 @@
-"""Score a trained force model on any dataset file: ``python -m dcm.evaluate ckpt=<ckpt> dataset=<h5>``.
+"""Score a predictor on any dataset file: ``python -m dcm.evaluate ckpt=<ckpt> dataset=<h5>``.
 
-Writes a JSON file with L_MSE (normalised units), R (Pearson correlation of predicted vs true L_task over
-trajectories), per-axis RMSE [N, N·m], n, and what produced them (model kind, T, sampler, samples, seed).
+``ckpt`` is a DCM/Baseline checkpoint, a stiffness reference JSON (``python -m dcm.models.references fit``)
+or ``copy_demo``. Writes a JSON file with the within-skill and pooled correlations of predicted vs true
+L_task (``R_within``, ``R_within_spearman``, ``R_within_n_skills``, ``R_pooled``; ``R`` = ``R_pooled``),
+``L_task_mae_N`` and, for force predictors, L_MSE (normalised units, learned models only), per-axis RMSE
+[N, N·m], ``force_rmse_N``, ``force_rmse_copy_N`` and ``force_rmse_ratio_copy``; plus n and what produced
+them (model kind, T, sampler, samples, seed). A learned model is reported beside two references under
+``references``: ``copy_demo`` and ``stiffness_ridge`` (fitted on the same file's train split in seconds, or
+loaded from ``reference=<json>``), so every comparison shows them. Skills are the trajectories' ``demo_id``.
 The dataset must have the model's channels and control rate; it need not be one the model saw.
 """
 
@@ -9,20 +15,23 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
-import sys
-
+import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from dcm.control.objectives import task_loss
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
-from dcm.data.schema import load_dataset
+from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
 from dcm.models.configuration import ModelInputError
-from dcm.models.dcm import DCM
-from dcm.models.predict import load_model
+from dcm.models.dcm import ForceModel
+from dcm.models.metrics import force_prediction_metrics, ranking_metrics
+from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss
+from dcm.models.references import COPY_DEMO, STIFFNESS_RIDGE, CopyDemo, StiffnessRegression, dataset_phases
 
 log = logging.getLogger("dcm.evaluate")
 
@@ -37,40 +46,84 @@ def _device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def score(predictor: Any, data: TrajectoryDataset, skills: np.ndarray | None, n_samples: int | None = None,
+          seed: int = 0) -> dict[str, float]:
+    """Metrics of any predictor on a set of trajectories (see the module docstring for the keys)."""
+    if isinstance(predictor, ForceModel):
+        return evaluate_model(predictor, data, n_samples, seed, skills)[0]
+    cond, F_obs = data.cond.numpy(), data.target.numpy()
+    x_demo, F_demo, x_attr, K = (cond[..., cond_slice(f)] for f in ("x_demo", "F_demo", "x_attr", "K"))
+    if isinstance(predictor, ForcePredictor):
+        F_pred, _ = predictor.predict_forces(x_demo, F_demo, x_attr, K, n_samples=n_samples)
+        metrics = force_prediction_metrics(np.asarray(F_pred), F_obs, F_demo, skills)[0]
+    else:
+        L_true = np.asarray(task_loss(F_obs.astype(np.float64), F_demo.astype(np.float64)))
+        metrics = ranking_metrics(predict_task_loss(predictor, x_demo, F_demo, x_attr, K), L_true, skills)
+    return {"R": metrics["R_pooled"], **metrics}
+
+
+def reference_scores(dataset: str | Path, data: TrajectoryDataset, skills: np.ndarray,
+                     reference: str | Path | None, n_phases: int | None = None) -> dict[str, dict[str, Any]]:
+    """copy_demo and stiffness_ridge on the same trajectories; the ridge is skipped, with why, if unusable.
+
+    ``n_phases``: the phase count of the trajectories' schedules, if known, checked against the ridge's."""
+    out: dict[str, dict[str, Any]] = {COPY_DEMO: {**score(CopyDemo(), data, skills), **CopyDemo().describe()}}
+    try:
+        ridge = load_model(reference) if reference else StiffnessRegression.fit_dataset(dataset, "train")
+        if not isinstance(ridge, StiffnessRegression):
+            raise ModelInputError(f"reference={reference} is not a stiffness reference JSON")
+        ridge.check_phases(n_phases, f"dataset {dataset}")
+        out[STIFFNESS_RIDGE] = {**score(ridge, data, skills), **ridge.describe()}
+    except ValueError as err:  # DatasetError (e.g. no train split), StiffnessScheduleError, ReferenceError
+        if reference:  # asked for explicitly: an error, not a silent gap
+            raise
+        out[STIFFNESS_RIDGE] = {"skipped": f"not fitted on the train split of {dataset}: {err}; "
+                                           "pass reference=<json>"}
+        log.warning("stiffness reference skipped: %s", out[STIFFNESS_RIDGE]["skipped"])
+    return out
+
+
 def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_samples: int | None = None,
-             n_eval: int | None = None, seed: int = 0, device: str = "auto") -> dict[str, Any]:
-    """Metrics of checkpoint ``ckpt`` on ``split`` of ``dataset`` (see the module docstring)."""
-    model = load_model(ckpt, map_location="cpu").to(_device(device))
+             n_eval: int | None = None, seed: int = 0, device: str = "auto", reference: str | Path | None = None,
+             ) -> dict[str, Any]:
+    """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model."""
+    predictor = load_model(ckpt, map_location="cpu")
+    if isinstance(predictor, ForceModel):
+        predictor = predictor.to(_device(device))
     loaded = load_dataset(dataset, split=None if split == "all" else split)
     cond_channels, target_channels = dataset_channels(loaded)
-    model.data_spec.check(cond_channels, target_channels, loaded.control_hz, source=f"dataset {dataset}")
+    check_dataset(predictor, cond_channels, target_channels, loaded.control_hz, source=f"dataset {dataset}")
+    n_phases = dataset_phases(loaded, required=False)
+    if isinstance(predictor, StiffnessRegression):
+        predictor.check_phases(n_phases, source=f"dataset {dataset}")
     data = TrajectoryDataset.from_loaded(loaded)
+    skills = loaded.demo_ids
     if n_eval is not None:
         if int(n_eval) < 1:
             raise ModelInputError(f"n_eval must be >= 1 or null, got {n_eval}")
-        data = data.subset(int(n_eval))
-    metrics, _ = evaluate_model(model, data, n_samples, seed)
-    is_dcm = isinstance(model, DCM)
-    k = (model.default_samples if n_samples is None else int(n_samples)) if is_dcm else 1
-    return {
-        **metrics,
+        data, skills = data.subset(int(n_eval)), skills[: int(n_eval)]
+    result: dict[str, Any] = {
+        **score(predictor, data, skills, n_samples, seed),
+        **describe(predictor, n_samples),
         "n": len(data),
-        "model": model.model_kind,
-        "T": int(model.cfg.diffusion_steps) if is_dcm else 1,
-        "sampler": model.cfg.sampler if is_dcm else "single-pass",
-        "sampling_steps": (model.cfg.sampling_steps or model.cfg.diffusion_steps) if is_dcm else 1,
-        "n_samples": k,
-        "net": model.cfg.net.get("name"),
+        "n_skills": int(len(np.unique(skills))),
         "seed": int(seed),
-        "ckpt": str(Path(ckpt).resolve()),
+        "ckpt": str(ckpt) if str(ckpt) == COPY_DEMO else str(Path(ckpt).resolve()),
         "dataset": str(Path(dataset).resolve()),
         "split": split,
         "control_hz": loaded.control_hz,
         "horizon": loaded.horizon,
     }
+    if isinstance(predictor, ForceModel):
+        result["references"] = reference_scores(dataset, data, skills, reference, n_phases)
+    return result
 
 
 CONFIG = Path(__file__).resolve().parent.parent / "conf" / "evaluate.yaml"
+
+
+def _fmt(value: Any) -> str:
+    return f"{value:.3f}" if isinstance(value, float) else "-"
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -90,14 +143,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise SystemExit(f"error: unknown keys {unknown} / missing keys {missing}; see python -m dcm.evaluate --help")
     try:
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
-                          seed=int(cfg.seed), device=str(cfg.device))
-    except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError
+                          seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference)
+    except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
         raise SystemExit(f"error: {err}") from None
     out = Path(str(cfg.out))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
-    log.info("n=%d  L_MSE=%.4g  R=%.3f  rmse Fx/Fy/Fz=%.3f/%.3f/%.3f N -> %s", result["n"], result["L_MSE"],
-             result["R"], result["rmse_Fx"], result["rmse_Fy"], result["rmse_Fz"], out)
+    rows = {result["model"]: result, **result.get("references", {})}
+    log.info("n=%d trajectories, %d skills (%s split) -> %s", result["n"], result["n_skills"], result["split"], out)
+    log.info("%-16s %9s %9s %9s %11s %12s", "predictor", "R_within", "Spearman", "R_pooled", "L_task_MAE", "force_RMSE")
+    for name, row in rows.items():
+        log.info("%-16s %9s %9s %9s %11s %12s", name, _fmt(row.get("R_within")), _fmt(row.get("R_within_spearman")),
+                 _fmt(row.get("R_pooled")), _fmt(row.get("L_task_mae_N")), _fmt(row.get("force_rmse_N")))
     return result
 
 

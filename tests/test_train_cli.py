@@ -39,10 +39,12 @@ def test_sweep_makes_one_run_dir_per_job(sweep: Path) -> None:
     for run in runs:
         assert list((run / "tb").glob("events.out.tfevents.*")), f"no TensorBoard events in {run}"
         assert (run / "checkpoints" / "last.ckpt").exists()
-        assert list((run / "checkpoints").glob("epoch*-R*.ckpt")), "no checkpoint selected on val/R"
+        assert list((run / "checkpoints").glob("epoch*-R*.ckpt")), "no checkpoint selected on val/R_within"
         assert (run / ".hydra" / "config.yaml").exists()
         summary = json.loads((run / "summary.json").read_text())
-        assert summary["monitor"] == "val/R" and "test/R" in summary["test"]
+        assert summary["monitor"] == "val/R_within"
+        assert {"test/R_within", "test/R_within_spearman", "test/R_pooled", "test/force_rmse_ratio_copy"} <= set(
+            summary["test"])
 
 
 def test_evaluate_writes_json(sweep: Path, tiny_dataset_path: Path, tmp_path: Path) -> None:
@@ -53,7 +55,8 @@ def test_evaluate_writes_json(sweep: Path, tiny_dataset_path: Path, tmp_path: Pa
                    "n_samples=2"])
     result = json.loads((tmp_path / "m.json").read_text())
     assert result["n"] == 3 and result["T"] == 2 and result["split"] == "valid"
-    assert {"L_MSE", "R", "rmse_Fx", "rmse_Fy", "rmse_Fz"} <= set(result)
+    assert {"L_MSE", "R", "R_within", "R_pooled", "rmse_Fx", "rmse_Fy", "rmse_Fz"} <= set(result)
+    assert {"copy_demo", "stiffness_ridge"} <= set(result["references"])
 
 
 def test_finetune_keeps_the_pretraining_normaliser_and_resume_continues(sweep: Path, tiny_dataset_path: Path,

@@ -22,11 +22,11 @@ def __getattr__(name: str):
         from dcm.models.baseline import Baseline
 
         return Baseline
-    if name == "load_model":
-        from dcm.models.predict import load_model
+    if name in ("load_model", "predict_task_loss"):
+        from dcm.models import predict
 
-        return load_model
+        return getattr(predict, name)
     raise AttributeError(f"module 'dcm.models' has no attribute {name!r}")
 
 
-__all__ += ["DCM", "Baseline", "load_model"]
+__all__ += ["DCM", "Baseline", "load_model", "predict_task_loss"]

@@ -1,18 +1,24 @@
-"""Task metrics of a force model: sample forces for an evaluation set and score them the paper's way.
+"""Task metrics of a force model: sample forces for an evaluation set and score them the way the tuner uses them.
 
+* ``R_within`` / ``R_within_spearman``: Pearson / Spearman correlation of predicted vs true L_task (force RMSE
+  to F_demo, :func:`dcm.control.objectives.task_loss`, in N) computed within each skill (demo) and averaged
+  over skills, with ``R_within_n_skills`` the skills used — the tuner ranks one skill's schedules, so this is
+  what checkpoints are selected on (``checkpoint.monitor`` in conf/train.yaml). See :mod:`dcm.models.metrics`.
+* ``R_pooled`` (and ``R``, the same number under its old name): Pearson correlation over all trajectories.
+* ``L_task_mae_N``: mean absolute error of predicted L_task.
 * ``L_MSE``: mean squared error of the predicted (k-sample mean) and true wrench, normalised units [-1, 1].
-* ``R``: Pearson correlation over trajectories between predicted and true L_task (force RMSE to F_demo,
-  :func:`dcm.control.objectives.task_loss`, in N) — what the stiffness optimiser ranks candidates by.
-* ``rmse_<axis>``: per-axis RMSE of the wrench [N for forces, N·m for torques].
+* ``rmse_<axis>``: per-axis RMSE of the wrench [N for forces, N·m for torques]; ``force_rmse_N`` over the
+  three force axes, next to ``force_rmse_copy_N`` (predicting F_obs := F_demo) and their ratio
+  ``force_rmse_ratio_copy`` (< 1: the model beats copying the demo).
 
-:class:`ForceMetricsCallback` logs them after validation/test epochs (checkpoints select on ``val/R``),
-plus TensorBoard figures of predicted vs true force curves; :func:`evaluate_model` is the same computation
-for ``python -m dcm.evaluate``.
+:class:`ForceMetricsCallback` logs them after validation/test epochs, plus TensorBoard figures of predicted vs
+true force curves; :func:`evaluate_model` is the same computation for ``python -m dcm.evaluate``.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import lightning as L
@@ -20,56 +26,48 @@ import numpy as np
 import torch
 import torchmetrics
 from lightning.pytorch.callbacks import Callback
+from lightning.pytorch.utilities import rank_zero_warn
 
-from dcm.control.objectives import task_loss
 from dcm.data.datamodule import TrajectoryDataset
-from dcm.data.schema import CHANNELS
+from dcm.data.schema import cond_slice
+from dcm.models.metrics import MIN_TRIALS, WRENCH_AXES, force_prediction_metrics
 
-AXES: tuple[str, ...] = tuple(c.split("_")[0] for c in CHANNELS["F_obs"])  # Fx, Fy, Fz, Tx, Ty, Tz
+AXES: tuple[str, ...] = WRENCH_AXES  # Fx, Fy, Fz, Tx, Ty, Tz
+GROUP_KEY = "demo_id"  # trajectory attribute that names a skill for within-skill R (see dcm.models.metrics)
+
+
+def read_skills(path: str | Path, names: list[str]) -> np.ndarray:
+    """The ``demo_id`` of each named trajectory of a dataset file (-1 where absent): the within-skill groups."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return np.array([int(f["data"][name].attrs.get(GROUP_KEY, -1)) for name in names], dtype=np.int64)
 
 
 @torch.no_grad()
 def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None = None, seed: int = 0,
-                   ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+                   skills: np.ndarray | None = None) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """Sample forces for every trajectory of ``dataset`` and compute the metrics.
 
-    Returns ``(metrics, arrays)``; arrays holds ``pred_N``, ``std_N``, ``true_N``, ``F_demo_N`` (N,H,6)
-    and ``L_task_pred``/``L_task_true`` (N,). Sampling uses a generator seeded with ``seed``.
+    ``skills`` (N,) labels trajectories for the within-skill correlations (None leaves them NaN). Returns
+    ``(metrics, arrays)``; arrays holds ``pred_N``, ``std_N``, ``true_N``, ``F_demo_N`` (N,H,6) and
+    ``L_task_pred``/``L_task_true`` (N,). Sampling uses a generator seeded with ``seed``.
     """
     device = model.device
     generator = torch.Generator(device=device).manual_seed(int(seed))
     cond = dataset.cond.to(device)
     true = dataset.target.to(device)
-    cond_n = model.cond_norm.normalize(cond)
-    mean_n, std_n = model.predict_normalized(cond_n, n_samples, generator)
-    pred = model.target_norm.unnormalize(mean_n)
-    true_n = model.target_norm.normalize(true)
-    F_demo = cond[..., 6:12]
+    pred, std = model.predict_raw(cond, n_samples, generator)
 
+    # L_MSE compares what the net learns (F_obs, or its residual from F_demo) in normalised units
     mse = torchmetrics.MeanSquaredError().to(device)
-    mse.update(mean_n.reshape(-1), true_n.reshape(-1))
-    rmse_axis = torchmetrics.MeanSquaredError(squared=False, num_outputs=6).to(device)
-    rmse_axis.update(pred.reshape(-1, 6), true.reshape(-1, 6))
-    L_pred = task_loss(pred, F_demo).double()
-    L_true = task_loss(true, F_demo).double()
-    if L_pred.numel() >= 2 and float(L_pred.std()) > 0 and float(L_true.std()) > 0:
-        pearson = torchmetrics.PearsonCorrCoef().to(device, dtype=torch.float64)
-        pearson.update(L_pred, L_true)
-        R = float(pearson.compute())
-    else:  # a constant prediction (or a single trajectory) has no defined correlation
-        R = float("nan")
-
-    metrics: dict[str, float] = {"L_MSE": float(mse.compute()), "R": R}
-    for axis, value in zip(AXES, rmse_axis.compute().tolist()):
-        metrics[f"rmse_{axis}"] = float(value)
-    metrics["rmse_force_N"] = float(((pred[..., :3] - true[..., :3]) ** 2).mean().sqrt())
-    metrics["L_task_abs_err_N"] = float((L_pred - L_true).abs().mean())
-    metrics["mean_std_N"] = float(model.target_norm.unnormalize_std(std_n)[..., :3].mean())
-    arrays = {
-        "pred_N": pred.cpu().numpy(), "std_N": model.target_norm.unnormalize_std(std_n).cpu().numpy(),
-        "true_N": true.cpu().numpy(), "F_demo_N": F_demo.cpu().numpy(),
-        "L_task_pred": L_pred.cpu().numpy(), "L_task_true": L_true.cpu().numpy(),
-    }
+    mse.update(model.normalized_target(cond, pred).reshape(-1), model.normalized_target(cond, true).reshape(-1))
+    arrays = {"pred_N": pred.cpu().numpy(), "std_N": std.cpu().numpy(), "true_N": true.cpu().numpy(),
+              "F_demo_N": cond[..., cond_slice("F_demo")].cpu().numpy()}
+    scores, L_pred, L_true = force_prediction_metrics(arrays["pred_N"], arrays["true_N"], arrays["F_demo_N"], skills)
+    metrics: dict[str, float] = {"L_MSE": float(mse.compute()), "R": scores["R_pooled"], **scores,
+                                 "mean_std_N": float(std[..., :3].mean())}
+    arrays.update(L_task_pred=L_pred, L_task_true=L_true)
     return metrics, arrays
 
 
@@ -106,8 +104,11 @@ def force_figure(arrays: dict[str, np.ndarray], names: list[str], n_plot: int = 
 class ForceMetricsCallback(Callback):
     """After validation (and test) epochs: sample forces for the evaluation set, log metrics and figures.
 
-    How often is the trainer's ``check_val_every_n_epoch``; how many trajectories is the DataModule's
-    ``n_eval``; how many samples per trajectory is ``n_samples`` (None = the model's own default).
+    How often is the trainer's ``check_val_every_n_epoch`` (the metrics must be logged at every validation,
+    since ModelCheckpoint monitors one of them); how many trajectories is the DataModule's ``n_eval``
+    (null = the whole split, the default, so checkpoint selection sees every validation skill); how many
+    samples per trajectory is ``n_samples`` (None = the model's own default). Skills are the trajectories'
+    ``demo_id``, read from the DataModule's file.
     """
 
     def __init__(self, n_samples: int | None = None, n_plot: int = 3, plot_every_n_evals: int = 1,
@@ -118,17 +119,31 @@ class ForceMetricsCallback(Callback):
         self.plot_every_n_evals = max(1, int(plot_every_n_evals))
         self.seed = int(seed)
         self._evals = 0
+        self._skills: dict[str, np.ndarray | None] = {}
+        self._warned: set[str] = set()
+
+    def _skills_of(self, datamodule: Any, split: str, names: list[str]) -> np.ndarray | None:
+        if split not in self._skills:
+            path = getattr(datamodule, "path", None)
+            self._skills[split] = read_skills(path, names) if path is not None else None
+        return self._skills[split]
 
     def _run(self, trainer: L.Trainer, pl_module: Any, split: str, prefix: str) -> dict[str, float] | None:
         datamodule = trainer.datamodule
         if datamodule is None or not hasattr(datamodule, "eval_set"):
             return None
         dataset = datamodule.eval_set(split)
-        metrics, arrays = evaluate_model(pl_module, dataset, self.n_samples, self.seed)
+        skills = self._skills_of(datamodule, split, dataset.names)
+        metrics, arrays = evaluate_model(pl_module, dataset, self.n_samples, self.seed, skills)
         for key, value in metrics.items():
             # identical on every rank (same data, same seed); the sync only keeps DDP ranks formally in step
             pl_module.log(f"{prefix}/{key}", value if math.isfinite(value) else float("nan"),
-                          prog_bar=key in ("R", "L_MSE"), sync_dist=trainer.world_size > 1)
+                          prog_bar=key in ("R_within", "L_MSE"), sync_dist=trainer.world_size > 1)
+        if not math.isfinite(metrics["R_within"]) and split not in self._warned:
+            self._warned.add(split)
+            rank_zero_warn(f"{prefix}/R_within is undefined: no skill of the {split} split ({len(dataset)} "
+                           f"trajectories) has >= {MIN_TRIALS} trials with varying L_task; checkpoint selection on "
+                           "it keeps the first checkpoints only — use checkpoint.monitor=val/R_pooled for this data")
         self._evals += 1
         logger = trainer.logger
         if (self.n_plot > 0 and trainer.is_global_zero and logger is not None

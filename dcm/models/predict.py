@@ -1,12 +1,43 @@
-"""Load any force-model checkpoint without knowing its class, and check a dataset against it."""
+"""Load any predictor by path or name, check a dataset against it, and get predicted L_task from it.
+
+A *predictor* is anything the evaluator and the tuner can score schedules with:
+
+* a force model checkpoint (DCM or Baseline, ``.ckpt``): ``predict_forces`` -> forces, L_task from them;
+* ``copy_demo`` (no file): ``predict_forces`` returns F_demo;
+* a stiffness reference JSON (``python -m dcm.models.references fit``): ``predict_task_loss`` directly.
+
+:func:`predict_task_loss` is the one call that works for all of them.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
-from dcm.models.configuration import CheckpointKindError
+import numpy as np
+
+from dcm.control.objectives import task_loss
+from dcm.models.configuration import CheckpointKindError, ModelInputError
 from dcm.models.dcm import DCM, ForceModel, _checkpoint_kind
+from dcm.models.references import COPY_DEMO, CopyDemo, load_reference
+
+
+@runtime_checkable
+class ForcePredictor(Protocol):
+    """Predicts the contact wrench (B, H, 6) [N, N·m] and its spread for raw inputs."""
+
+    def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
+                       generator: Any = None) -> tuple[Any, Any]: ...
+
+
+@runtime_checkable
+class TaskLossPredictor(Protocol):
+    """Predicts L_task (B,) [N] directly, without forces."""
+
+    def predict_task_loss(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any) -> np.ndarray: ...
+
+
+Predictor = ForcePredictor | TaskLossPredictor
 
 
 def model_class(kind: str) -> type[ForceModel]:
@@ -27,8 +58,75 @@ def checkpoint_kind(path: str | Path) -> str:
     return str(kind)
 
 
-def load_model(path: str | Path, map_location: Any = "cpu") -> ForceModel:
-    """Load a DCM or Baseline checkpoint, in eval mode."""
-    model = model_class(checkpoint_kind(path)).load_from_checkpoint(path, map_location=map_location)
+def load_model(path: str | Path, map_location: Any = "cpu") -> Any:
+    """Load a predictor: a DCM/Baseline checkpoint (in eval mode), a reference JSON, or ``copy_demo``.
+
+    Anything else raises a :class:`ModelInputError` (a ValueError) whose one-line message names ``path``.
+    """
+    if str(path) == COPY_DEMO:
+        return CopyDemo()
+    path = Path(path)
+    if not path.exists():
+        raise ModelInputError(f"{path}: no such file; expected a .ckpt checkpoint, a reference .json "
+                              f"(python -m dcm.models.references fit) or the name {COPY_DEMO!r}")
+    if path.suffix.lower() == ".json":
+        return load_reference(path)
+    try:
+        model = model_class(checkpoint_kind(path)).load_from_checkpoint(path, map_location=map_location)
+    except ModelInputError as err:
+        raise type(err)(" ".join(str(err).split())) from None  # one line, whatever torch.load said
     model.eval()
     return model
+
+
+def check_dataset(predictor: Any, cond_channels: list[str], target_channels: list[str], control_hz: float,
+                  source: str) -> None:
+    """Raise if a dataset's channels or control rate differ from the predictor's (copy_demo accepts any)."""
+    spec = getattr(predictor, "data_spec", None)
+    if spec is not None:
+        spec.check(cond_channels, target_channels, control_hz, source=source)
+
+
+def _numpy(value: Any) -> np.ndarray:
+    if hasattr(value, "detach"):
+        value = value.detach().cpu().numpy()
+    return np.asarray(value)
+
+
+def predict_task_loss(predictor: Any, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
+                      generator: Any = None) -> np.ndarray:
+    """Predicted L_task (B,) [N] of any predictor for (B, H, 6) or (H, 6) raw inputs.
+
+    Force predictors: :func:`dcm.control.objectives.task_loss` of the (``n_samples``-averaged) predicted
+    force against F_demo, as the tuner always computed it. Others: their ``predict_task_loss``.
+    """
+    if isinstance(predictor, ForcePredictor):
+        kwargs = {"n_samples": n_samples} if generator is None else {"n_samples": n_samples, "generator": generator}
+        mean, _ = predictor.predict_forces(_numpy(x_demo), _numpy(F_demo), _numpy(x_attr), _numpy(K), **kwargs)
+        return np.atleast_1d(np.asarray(task_loss(_numpy(mean).astype(np.float64),
+                                                  _numpy(F_demo).astype(np.float64))))
+    if isinstance(predictor, TaskLossPredictor):
+        return np.atleast_1d(np.asarray(predictor.predict_task_loss(x_demo, F_demo, x_attr, K), dtype=np.float64))
+    raise TypeError(f"{type(predictor).__name__} has neither predict_forces nor predict_task_loss")
+
+
+def describe(predictor: Any, n_samples: int | None = None) -> dict[str, Any]:
+    """What produced a prediction, for result files: kind, and for force models T, sampler, samples, net."""
+    if isinstance(predictor, ForceModel):
+        is_dcm = isinstance(predictor, DCM)
+        k = (predictor.default_samples if n_samples is None else int(n_samples)) if is_dcm else 1
+        return {
+            "model": predictor.model_kind,
+            "T": int(predictor.cfg.diffusion_steps) if is_dcm else 1,
+            "sampler": predictor.cfg.sampler if is_dcm else "single-pass",
+            "sampling_steps": (predictor.cfg.sampling_steps or predictor.cfg.diffusion_steps) if is_dcm else 1,
+            "n_samples": k,
+            "net": predictor.cfg.net.get("name"),
+        }
+    if hasattr(predictor, "describe"):
+        return predictor.describe()
+    return {"model": type(predictor).__name__}
+
+
+__all__ = ["ForcePredictor", "Predictor", "TaskLossPredictor", "check_dataset", "checkpoint_kind", "describe",
+           "load_model", "model_class", "predict_task_loss"]

@@ -53,18 +53,20 @@ def plot_solution_forces(
     path: Path,
     dt: float,
     force_demo: np.ndarray,
-    force_predicted: np.ndarray,
+    force_predicted: np.ndarray | None,
     force_realised: np.ndarray,
     stiffness: np.ndarray,
     title: str,
 ) -> None:
-    """Demo, predicted and simulator-realised forces of one solution, over its stiffness schedule."""
+    """Demo, predicted (if the predictor has forces) and simulator-realised forces of one solution, over its
+    stiffness schedule."""
     t = np.arange(len(force_demo)) * dt
     fig, axes = plt.subplots(4, 1, figsize=(7, 7.5), sharex=True)
     for axis, name in enumerate(("F_x", "F_y", "F_z")):
         ax = axes[axis]
         ax.plot(t, force_demo[:, axis], "k--", lw=1.2, label="demo")
-        ax.plot(t, force_predicted[:, axis], c="tab:blue", lw=1.0, label="predicted by the model")
+        if force_predicted is not None:
+            ax.plot(t, force_predicted[:, axis], c="tab:blue", lw=1.0, label="predicted by the model")
         ax.plot(t, force_realised[:, axis], c="tab:orange", lw=1.0, label="realised in the simulator")
         ax.set_ylabel(f"{name} [N]")
         ax.grid(alpha=0.3)

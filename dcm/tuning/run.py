@@ -2,7 +2,8 @@
 
 Steps (each resumable from the run directory):
 1. record the new skill's demo in the simulator;
-2. robot-free search: ``robot_free.n_trials`` virtual trials, L_task predicted by the checkpoint;
+2. robot-free search: ``robot_free.n_trials`` virtual trials, L_task predicted by the checkpoint (or by a
+   stiffness reference JSON, ``python -m dcm.models.references fit``; ``copy_demo`` is refused: it ranks nothing);
 3. validate up to ``robot_free.n_validate`` solutions spread along the predicted Pareto front in the simulator;
 4. robot-based search: ``robot_based.n_trials`` simulated trials with the same strategy;
 5. hypervolume I_H of both, against one reference point, written to ``results.json`` with figures.
@@ -53,16 +54,22 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
 
     out_dir.mkdir(parents=True, exist_ok=True)
     model = load_model(cfg.ckpt, map_location=resolve_device(cfg.device))
+    if not getattr(model, "ranks_schedules", True):
+        raise ValueError(f"ckpt={cfg.ckpt} cannot tune: it predicts F_obs = F_demo, hence L_task = 0, for every "
+                         "stiffness schedule, so it cannot rank them; use a checkpoint or a stiffness reference "
+                         "JSON (python -m dcm.models.references fit)")
+    if hasattr(model, "check_phases"):  # the stiffness reference reads K as per-phase values
+        model.check_phases(cfg.stiffness.n_phases, source="tune stiffness.n_phases")
     spec_model = model.data_spec
     spec_model.check(spec_model.cond_channels, spec_model.target_channels, cfg.control_hz,
-                     source=f"tune.control_hz for checkpoint {cfg.ckpt}")
+                     source=f"tune.control_hz for {cfg.ckpt}")
 
     if cfg.demo_file:
         spec = DemoSpec.load(cfg.demo_file)
     else:
         spec = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo, resolve=True), where="tune.demo")
     simulator = Simulator(embodiment=cfg.embodiment, bowl=spec.bowl, domain=resolve_domain(OmegaConf.to_container(cfg.domain) if OmegaConf.is_config(cfg.domain) else cfg.domain),
-                          control_hz=cfg.control_hz, seed=cfg.seed)
+                          control_hz=cfg.control_hz, seed=cfg.seed, damping=cfg.stiffness.damping)
     demo = simulator.record_demo(spec)
     stiffness_cfg = cfg.stiffness
     boundaries = phase_boundaries(stiffness_cfg.phases, stiffness_cfg.n_phases, demo.force_demo)
@@ -139,7 +146,8 @@ def _plot_best(path: Path, objective: ModelObjective, params: np.ndarray, valida
         return
     best = int(np.nanargmin(validated[:, 0]))
     stiffness, predicted, _ = objective.predict(params[best : best + 1])
-    plot_solution_forces(path, demo.dt, demo.force_demo, predicted[0], trials[best].force_obs, stiffness[0],
+    plot_solution_forces(path, demo.dt, demo.force_demo, None if predicted is None else predicted[0],
+                         trials[best].force_obs, stiffness[0],
                          f"validated solution {best}: L_task={validated[best, 0]:.2f} N, "
                          f"L_comp={validated[best, 1]:.2f} kN/m")
 

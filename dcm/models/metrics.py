@@ -1,0 +1,137 @@
+"""Metrics that answer the tuner's question: does a predictor rank ONE skill's stiffness schedules by L_task?
+
+The tuner compares schedules of a single skill, so the number that matters is the **within-skill**
+correlation between predicted and true L_task: computed per skill, then averaged over skills. The pooled
+correlation over all trajectories is also reported, but it is dominated by differences *between* skills
+(a steep bowl has a higher L_task whatever the stiffness) and can be high while every within-skill ranking
+is wrong, or low while every ranking is right.
+
+A "skill" here is one demo (the ``demo_id`` attribute of a trajectory): the tuner tunes one demonstrated
+stroke. The ``skill`` attribute of a dataset names the preset's skill *family* ("spiral"), shared by all
+80 spiral demos of ``sim``, so it is not the grouping the tuner sees.
+
+Force metrics put a model's force RMSE next to that of copying the demonstrated force (``F_obs := F_demo``):
+a model that does not beat copy-F_demo has learnt nothing about the contact beyond the demo.
+
+Pure numpy/scipy on arrays in physical units; every function returns plain floats (NaN when undefined).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from scipy import stats
+
+from dcm.control.objectives import task_loss
+from dcm.data.schema import CHANNELS
+
+Method = Literal["pearson", "spearman"]
+WRENCH_AXES: tuple[str, ...] = tuple(c.split("_")[0] for c in CHANNELS["F_obs"])  # Fx, Fy, Fz, Tx, Ty, Tz
+MIN_TRIALS = 3  # a correlation over 2 points is always +-1: it says nothing about ranking
+
+
+def correlation(pred: np.ndarray, true: np.ndarray, method: Method = "pearson") -> float:
+    """Pearson or Spearman correlation of two 1-D arrays; NaN with < 2 points or a constant array."""
+    pred = np.asarray(pred, dtype=np.float64).ravel()
+    true = np.asarray(true, dtype=np.float64).ravel()
+    if pred.shape != true.shape:
+        raise ValueError(f"correlation: predicted shape {pred.shape} differs from true shape {true.shape}")
+    keep = np.isfinite(pred) & np.isfinite(true)
+    pred, true = pred[keep], true[keep]
+    if pred.size < 2 or np.ptp(pred) == 0 or np.ptp(true) == 0:
+        return float("nan")
+    if method == "pearson":
+        return float(stats.pearsonr(pred, true).statistic)
+    if method == "spearman":
+        return float(stats.spearmanr(pred, true).statistic)
+    raise ValueError(f"correlation method {method!r} is unknown; expected 'pearson' or 'spearman'")
+
+
+def within_skill_correlation(pred: np.ndarray, true: np.ndarray, skills: np.ndarray, method: Method = "pearson",
+                             min_trials: int = MIN_TRIALS) -> tuple[float, int]:
+    """Mean over skills of the per-skill correlation, and how many skills entered the mean.
+
+    Skills with fewer than ``min_trials`` finite trials, or a constant predicted or true L_task, have no
+    defined ranking and are skipped; the mean is NaN when none is left. A plain (not Fisher-z) mean: each
+    skill counts once, whatever its number of trials, as each tuning run does.
+    """
+    pred = np.asarray(pred, dtype=np.float64).ravel()
+    true = np.asarray(true, dtype=np.float64).ravel()
+    skills = np.asarray(skills).ravel()
+    if not (pred.shape == true.shape == skills.shape):
+        raise ValueError(f"within_skill_correlation: shapes differ: predicted {pred.shape}, true {true.shape}, "
+                         f"skills {skills.shape}")
+    values = []
+    for skill in np.unique(skills):
+        sel = (skills == skill) & np.isfinite(pred) & np.isfinite(true)
+        if sel.sum() < min_trials:
+            continue
+        r = correlation(pred[sel], true[sel], method)
+        if np.isfinite(r):
+            values.append(r)
+    return (float(np.mean(values)) if values else float("nan")), len(values)
+
+
+def ranking_metrics(L_pred: np.ndarray, L_true: np.ndarray, skills: np.ndarray | None) -> dict[str, float]:
+    """Predicted vs true L_task [N] over trajectories of one split.
+
+    Keys: ``R_within`` / ``R_within_spearman`` (per-skill Pearson / Spearman averaged over skills; the
+    checkpoint-selection metric), ``R_within_n_skills`` (skills used), ``R_pooled`` (Pearson over all
+    trajectories), ``L_task_mae_N`` (mean absolute error of L_task). ``skills=None`` (no labels) leaves
+    the within-skill values NaN.
+    """
+    L_pred = np.asarray(L_pred, dtype=np.float64).ravel()
+    L_true = np.asarray(L_true, dtype=np.float64).ravel()
+    if skills is None:
+        r_within, r_within_s, n_skills = float("nan"), float("nan"), 0
+    else:
+        r_within, n_skills = within_skill_correlation(L_pred, L_true, skills, "pearson")
+        r_within_s, _ = within_skill_correlation(L_pred, L_true, skills, "spearman")
+    finite = np.isfinite(L_pred) & np.isfinite(L_true)
+    return {
+        "R_within": r_within,
+        "R_within_spearman": r_within_s,
+        "R_within_n_skills": int(n_skills),
+        "R_pooled": correlation(L_pred, L_true, "pearson"),
+        "L_task_mae_N": float(np.abs(L_pred[finite] - L_true[finite]).mean()) if finite.any() else float("nan"),
+    }
+
+
+def force_rmse(force_a: np.ndarray, force_b: np.ndarray) -> float:
+    """RMSE [N] between two (..., H, >=3) wrench arrays over everything and the 3 force axes."""
+    a = np.asarray(force_a, dtype=np.float64)[..., :3]
+    b = np.asarray(force_b, dtype=np.float64)[..., :3]
+    return float(np.sqrt(np.mean((a - b) ** 2)))
+
+
+def force_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray) -> dict[str, float]:
+    """Force accuracy of a prediction (N, H, 6) against the observed wrench, next to copy-F_demo's.
+
+    Keys: ``rmse_<axis>`` per wrench axis [N or N·m], ``force_rmse_N`` (force axes together),
+    ``force_rmse_copy_N`` (the same for predicting F_obs := F_demo), ``force_rmse_ratio_copy``
+    (model / copy: below 1 the model beats copying the demo).
+    """
+    F_pred = np.asarray(F_pred, dtype=np.float64)
+    F_obs = np.asarray(F_obs, dtype=np.float64)
+    axis_rmse = np.sqrt(np.mean((F_pred - F_obs).reshape(-1, F_obs.shape[-1]) ** 2, axis=0))
+    out = {f"rmse_{axis}": float(v) for axis, v in zip(WRENCH_AXES, axis_rmse)}
+    model, copy = force_rmse(F_pred, F_obs), force_rmse(F_demo, F_obs)
+    out.update(force_rmse_N=model, force_rmse_copy_N=copy,
+               force_rmse_ratio_copy=model / copy if copy > 0 else float("nan"))
+    return out
+
+
+def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray,
+                             skills: np.ndarray | None) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+    """:func:`force_metrics` plus :func:`ranking_metrics` of the L_task the forces imply.
+
+    Returns ``(metrics, L_task_pred, L_task_true)``; L_task is :func:`dcm.control.objectives.task_loss`.
+    """
+    L_pred = np.asarray(task_loss(np.asarray(F_pred, np.float64), np.asarray(F_demo, np.float64)))
+    L_true = np.asarray(task_loss(np.asarray(F_obs, np.float64), np.asarray(F_demo, np.float64)))
+    return {**force_metrics(F_pred, F_obs, F_demo), **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
+
+
+__all__ = ["MIN_TRIALS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
+           "ranking_metrics", "within_skill_correlation"]

@@ -1,0 +1,100 @@
+"""dcm.models.metrics on hand-made cases: within-skill vs pooled correlation, skipping, force RMSE vs copy."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from dcm.models.metrics import (
+    correlation,
+    force_metrics,
+    force_prediction_metrics,
+    ranking_metrics,
+    within_skill_correlation,
+)
+
+
+def test_pooled_high_but_every_within_skill_ranking_inverted() -> None:
+    # two skills at very different levels; inside each, the predicted order is the reverse of the true one
+    true = np.array([1.0, 2.0, 3.0, 10.0, 11.0, 12.0])
+    pred = np.array([1.3, 1.2, 1.1, 10.3, 10.2, 10.1])
+    skills = np.array([0, 0, 0, 1, 1, 1])
+    m = ranking_metrics(pred, true, skills)
+    assert m["R_pooled"] > 0.95
+    assert m["R_within"] == pytest.approx(-1.0) and m["R_within_spearman"] == pytest.approx(-1.0)
+    assert m["R_within_n_skills"] == 2
+    assert m["L_task_mae_N"] == pytest.approx(np.abs(pred - true).mean())
+
+
+def test_pooled_negative_but_every_within_skill_ranking_right() -> None:
+    # the levels are swapped between skills, the orders inside each skill are right
+    true = np.array([1.0, 2.0, 3.0, 10.0, 11.0, 12.0])
+    pred = np.array([11.0, 12.0, 13.0, 1.0, 2.0, 3.0])
+    m = ranking_metrics(pred, true, np.array([5, 5, 5, 9, 9, 9]))
+    assert m["R_pooled"] < -0.8
+    assert m["R_within"] == pytest.approx(1.0) and m["R_within_spearman"] == pytest.approx(1.0)
+
+
+def test_shuffled_predictions_give_zero_within_skill_correlation() -> None:
+    rng = np.random.default_rng(0)
+    n_skills, n_trials = 300, 10
+    skills = np.repeat(np.arange(n_skills), n_trials)
+    true = rng.lognormal(size=n_skills * n_trials) + 10.0 * skills / n_skills  # levels differ by skill
+    pred = true.copy()
+    for s in range(n_skills):  # the right values, in a random order within each skill
+        sel = skills == s
+        pred[sel] = rng.permutation(true[sel])
+    m = ranking_metrics(pred, true, skills)
+    assert abs(m["R_within"]) < 0.05 and abs(m["R_within_spearman"]) < 0.05
+    assert m["R_within_n_skills"] == n_skills
+    assert m["R_pooled"] > 0.5  # the levels alone make the pooled correlation look good
+
+
+def test_mean_over_skills_matches_scipy_per_skill() -> None:
+    rng = np.random.default_rng(1)
+    pred, true = rng.normal(size=12), rng.normal(size=12)
+    skills = np.repeat([0, 1, 2], 4)
+    expected = np.mean([stats.pearsonr(pred[skills == s], true[skills == s]).statistic for s in range(3)])
+    assert within_skill_correlation(pred, true, skills)[0] == pytest.approx(expected)
+    expected_s = np.mean([stats.spearmanr(pred[skills == s], true[skills == s]).statistic for s in range(3)])
+    assert within_skill_correlation(pred, true, skills, "spearman")[0] == pytest.approx(expected_s)
+
+
+def test_small_or_constant_skills_are_skipped_and_counted() -> None:
+    true = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 1.0, 2.0, 3.0, 7.0, 8.0])
+    pred = np.array([1.0, 2.0, 3.0, 0.5, 0.5, 0.5, 0.5, 0.5, 1.0, 0.0])
+    skills = np.array([0, 0, 0, 1, 1, 1, 1, 1, 2, 2])  # 1: constant prediction; 2: two trials only
+    assert within_skill_correlation(pred, true, skills) == (pytest.approx(1.0), 1)
+    r, n = within_skill_correlation(np.zeros(6), np.arange(6.0), np.zeros(6))  # copy-F_demo: L_task 0 everywhere
+    assert math.isnan(r) and n == 0
+    m = ranking_metrics(pred, true, None)
+    assert math.isnan(m["R_within"]) and m["R_within_n_skills"] == 0 and np.isfinite(m["R_pooled"])
+    assert math.isnan(correlation(np.ones(4), np.arange(4.0)))
+
+
+def test_spearman_sees_a_monotone_ranking_that_pearson_underrates() -> None:
+    true = np.arange(1.0, 7.0)
+    pred = np.exp(3 * true)
+    skills = np.zeros(6, int)
+    assert within_skill_correlation(pred, true, skills, "spearman")[0] == pytest.approx(1.0)
+    assert within_skill_correlation(pred, true, skills, "pearson")[0] < 0.9
+
+
+def test_force_rmse_next_to_copy_demo() -> None:
+    rng = np.random.default_rng(2)
+    F_demo = rng.normal(size=(4, 20, 6))
+    F_obs = F_demo + rng.normal(scale=2.0, size=F_demo.shape)
+    copy = force_metrics(F_demo, F_obs, F_demo)
+    assert copy["force_rmse_N"] == pytest.approx(copy["force_rmse_copy_N"]) and copy["force_rmse_ratio_copy"] == 1.0
+    exact = force_metrics(F_obs, F_obs, F_demo)
+    assert exact["force_rmse_N"] == 0.0 and exact["force_rmse_ratio_copy"] == 0.0
+    half = force_metrics(F_demo + 0.5 * (F_obs - F_demo), F_obs, F_demo)
+    assert half["force_rmse_ratio_copy"] == pytest.approx(0.5)
+    assert half["rmse_Fz"] == pytest.approx(np.sqrt(np.mean((0.5 * (F_obs - F_demo)[..., 2]) ** 2)))
+    assert set(half) >= {"rmse_Fx", "rmse_Fy", "rmse_Fz", "rmse_Tx", "rmse_Ty", "rmse_Tz"}
+    # the L_task implied by the forces: copy-F_demo predicts 0 everywhere, so it ranks nothing
+    m, L_pred, L_true = force_prediction_metrics(F_demo, F_obs, F_demo, np.zeros(4, int))
+    assert np.all(L_pred == 0) and math.isnan(m["R_within"]) and m["L_task_mae_N"] == pytest.approx(L_true.mean())
