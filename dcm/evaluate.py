@@ -24,6 +24,7 @@ import torch
 from omegaconf import OmegaConf
 
 from dcm.control.objectives import task_loss
+from dcm.cli import resolve_device
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
@@ -34,16 +35,6 @@ from dcm.models.predict import ForcePredictor, check_dataset, describe, load_mod
 from dcm.models.references import COPY_DEMO, STIFFNESS_RIDGE, CopyDemo, StiffnessRegression, dataset_phases
 
 log = logging.getLogger("dcm.evaluate")
-
-
-def _device(name: str) -> torch.device:
-    if name == "auto":
-        if torch.cuda.is_available():
-            return torch.device("cuda")
-        if getattr(torch.backends, "mps", None) is not None and torch.backends.mps.is_available():
-            return torch.device("mps")
-        return torch.device("cpu")
-    return torch.device(name)
 
 
 def score(predictor: Any, data: TrajectoryDataset, skills: np.ndarray | None, n_samples: int | None = None,
@@ -89,7 +80,7 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
     """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model."""
     predictor = load_model(ckpt, map_location="cpu")
     if isinstance(predictor, ForceModel):
-        predictor = predictor.to(_device(device))
+        predictor = predictor.to(resolve_device(device))
     loaded = load_dataset(dataset, split=None if split == "all" else split)
     cond_channels, target_channels = dataset_channels(loaded)
     check_dataset(predictor, cond_channels, target_channels, loaded.control_hz, source=f"dataset {dataset}")

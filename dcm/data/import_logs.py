@@ -56,6 +56,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from dcm.cli import JSONFileError, load_json
 from dcm.data.schema import DatasetError, write_dataset
 
 NOMINAL_DOWN = np.diag([1.0, -1.0, -1.0])
@@ -174,7 +175,12 @@ def import_episode(episode: Path, control_hz: float, horizon: int | None, lowpas
     meta_path = episode / "meta.json"
     if not meta_path.exists():
         raise LogFormatError(f"{episode}: missing meta.json")
-    meta = json.loads(meta_path.read_text())
+    try:
+        meta = load_json(meta_path)
+    except JSONFileError as err:
+        raise LogFormatError(str(err)) from None
+    if not isinstance(meta, dict):
+        raise LogFormatError(f"{meta_path}: expected a JSON object {{...}}, got {type(meta).__name__}")
     for key in ("demo_id", "bowl_in_base", "free_motion_s", "base_frame"):
         if key not in meta:
             raise LogFormatError(f"{meta_path}: missing key {key!r}")

@@ -141,9 +141,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from omegaconf import OmegaConf
     from tqdm import tqdm
 
-    from dcm.data.generate import resolve_domain
     from dcm.data.presets import plan_demos
     from dcm.sim.demos import DemoSpec
+    from dcm.sim.domain import DomainSpec
     from dcm.sim.rollout import Simulator
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         spec = DemoSpec.from_dict(job.spec, where=f"{args.dataset} skill {job.index}")
         key = json.dumps(job.spec.get("bowl", {}), sort_keys=True)
         if key not in sims:
-            sims = {key: Simulator(embodiment, spec.bowl, resolve_domain(preset["domain"]), seed=args.seed,
+            sims = {key: Simulator(embodiment, spec.bowl, DomainSpec.resolve(preset["domain"]), seed=args.seed,
                                    damping=args.damping)}
         skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims[key], spec, args.n_random, space, rng)
     result = {"dataset": args.dataset, "splits": args.splits, "embodiment": embodiment, "damping": args.damping,

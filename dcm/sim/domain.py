@@ -96,6 +96,17 @@ class DomainSpec(SpecIO):
             raise DomainSpecError(f"unknown domain preset {name!r}; known: {sorted(PRESETS)}")
         return cls.from_dict(PRESETS[name])
 
+    @classmethod
+    def resolve(cls, domain: Any) -> "DomainSpec":
+        """A domain as configs give it: a preset name, a mapping of fields, or a ``DomainSpec``."""
+        if isinstance(domain, cls):
+            return domain
+        if isinstance(domain, str):
+            return cls.preset(domain)
+        if isinstance(domain, dict):
+            return cls.from_dict(domain)
+        raise DomainSpecError(f"domain = {domain!r}: expected a preset name or a mapping of DomainSpec fields")
+
 
 PRESETS: dict[str, dict[str, Any]] = {
     "nominal": {"name": "nominal"},

@@ -1,0 +1,126 @@
+"""Helpers shared by the command-line entry points, so that a user's mistake ends in one clear line.
+
+* :func:`resolve_device` turns a ``device=`` setting into a ``torch.device`` and refuses a device this machine
+  does not have (instead of a CUDA traceback deep inside the first forward pass);
+* :func:`load_json` reads a JSON file and reports a syntax error as ``file, line L, column C: ...``;
+* :func:`config_diff` lists the settings that differ between two configurations, e.g. ``seed: 0 -> 3``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+DEVICE_CHOICES = "auto, cpu, cuda, cuda:<index> or mps"
+
+
+class DeviceError(ValueError):
+    """A requested device is unknown or not present on this machine; names the option and the value."""
+
+
+class JSONFileError(ValueError):
+    """A JSON file that cannot be read or parsed; names the file, line and column."""
+
+
+def resolve_device(name: str, option: str = "device") -> "Any":
+    """The ``torch.device`` for a setting (``auto``: cuda, else mps, else cpu).
+
+    ``option`` is the setting's name as the user types it (``device``, ``trainer.accelerator`` ...) and appears
+    in the error, e.g. ``device=cuda: CUDA is not available on this machine (torch 2.13.0+cpu); use device=cpu
+    or device=auto``.
+    """
+    import torch
+
+    name = str(name).strip().lower()
+    if name == "auto":
+        if torch.cuda.is_available():
+            return torch.device("cuda")
+        return torch.device("mps" if _mps_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError):
+        raise DeviceError(f"{option}={name}: not a device; use {DEVICE_CHOICES}") from None
+    if device.type not in ("cpu", "cuda", "mps"):
+        raise DeviceError(f"{option}={name}: unsupported device type {device.type!r}; use {DEVICE_CHOICES}")
+    _check_present(device.type, device.index, option, name)
+    return device
+
+
+def check_accelerator(name: str, option: str = "trainer.accelerator") -> None:
+    """Refuse a Lightning accelerator this machine does not have (``gpu``/``cuda``/``mps``; others pass)."""
+    name = str(name).strip().lower()
+    if name in ("gpu", "cuda", "mps"):
+        _check_present("mps" if name == "mps" else "cuda", None, option, name)
+
+
+def _mps_available() -> bool:
+    import torch
+
+    mps = getattr(torch.backends, "mps", None)
+    return mps is not None and mps.is_available()
+
+
+def _check_present(kind: str, index: int | None, option: str, value: str) -> None:
+    import torch
+
+    fallback = f"use {option}=cpu or {option}=auto"
+    if kind == "cuda":
+        if not torch.cuda.is_available():
+            raise DeviceError(f"{option}={value}: CUDA is not available on this machine (torch {torch.__version__}); "
+                              f"{fallback}")
+        count = torch.cuda.device_count()
+        if index is not None and index >= count:
+            raise DeviceError(f"{option}={value}: this machine has {count} CUDA device(s), cuda:0..cuda:{count - 1}")
+    elif kind == "mps" and not _mps_available():
+        raise DeviceError(f"{option}={value}: Apple MPS is not available on this machine; {fallback}")
+
+
+def load_json(path: str | os.PathLike) -> Any:
+    """Parse a JSON file; a syntax error becomes one line naming the file, line and column."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise JSONFileError(f"{path}: cannot read ({err.strerror or err})") from None
+    except UnicodeDecodeError as err:
+        raise JSONFileError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise JSONFileError(f"{path}, line {err.lineno}, column {err.colno}: invalid JSON ({err.msg})") from None
+
+
+def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
+    """``{a: {b: 1}}`` -> ``{"a.b": 1}``; lists stay whole values."""
+    if isinstance(config, Mapping):
+        out: dict[str, Any] = {}
+        for key, value in config.items():
+            out.update(flatten(value, f"{prefix}{key}."))
+        return out if out or not prefix else {prefix[:-1]: {}}
+    return {prefix[:-1]: config}
+
+
+def config_diff(old: Mapping[str, Any], new: Mapping[str, Any], ignore: Iterable[str] = (),
+                limit: int = 6) -> list[str]:
+    """``key: old -> new`` for every flattened setting that differs (``ignore`` lists keys or key prefixes)."""
+    ignore = tuple(ignore)
+    flat_old, flat_new = flatten(old), flatten(new)
+    missing = object()
+    lines = []
+    for key in sorted(set(flat_old) | set(flat_new)):
+        if any(key == i or key.startswith(f"{i}.") for i in ignore):
+            continue
+        a, b = flat_old.get(key, missing), flat_new.get(key, missing)
+        if a != b:
+            before, after = ("(absent)" if v is missing else _short(v) for v in (a, b))
+            lines.append(f"{key}: {before} -> {after}")
+    if len(lines) > limit:
+        lines = [*lines[:limit], f"... {len(lines) - limit} more"]
+    return lines
+
+
+def _short(value: Any, width: int = 60) -> str:
+    text = json.dumps(value, default=str) if isinstance(value, (list, dict)) else str(value)
+    return text if len(text) <= width else text[: width - 3] + "..."

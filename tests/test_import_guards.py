@@ -1,0 +1,36 @@
+"""python -m dcm.data.import_logs: a malformed meta.json is one line naming the file, line and column."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from dcm.data.import_logs import LogFormatError, import_logs
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_malformed_meta_json_is_one_line(tmp_path: Path) -> None:
+    episode = tmp_path / "logs" / "ep000"
+    episode.mkdir(parents=True)
+    meta = episode / "meta.json"
+    meta.write_text('{\n  "demo_id": 0,\n  "split": "train"\n  "base_frame": "panda_link0"\n}\n')
+    out = tmp_path / "real.h5"
+    proc = subprocess.run([sys.executable, "-m", "dcm.data.import_logs", str(tmp_path / "logs"), "--out", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=120,
+                          env=dict(os.environ, PYTHONWARNINGS="ignore"))
+    assert proc.returncode == 1
+    assert proc.stderr.strip() == f"error: {meta}, line 4, column 3: invalid JSON (Expecting ',' delimiter)"
+    assert not out.exists()
+
+
+def test_meta_json_must_be_an_object(tmp_path: Path) -> None:
+    episode = tmp_path / "logs" / "ep000"
+    episode.mkdir(parents=True)
+    (episode / "meta.json").write_text("[1, 2]")
+    with pytest.raises(LogFormatError, match=r"meta.json: expected a JSON object \{...\}, got list"):
+        import_logs(tmp_path / "logs", tmp_path / "real.h5")
