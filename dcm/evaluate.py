@@ -29,7 +29,7 @@ from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
 from dcm.models.configuration import ModelInputError
-from dcm.models.dcm import ForceModel
+from dcm.models.dcm import DCM, ForceModel
 from dcm.models.metrics import force_prediction_metrics, ranking_metrics
 from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss
 from dcm.models.references import COPY_DEMO, STIFFNESS_RIDGE, CopyDemo, StiffnessRegression, dataset_phases
@@ -76,11 +76,17 @@ def reference_scores(dataset: str | Path, data: TrajectoryDataset, skills: np.nd
 
 def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_samples: int | None = None,
              n_eval: int | None = None, seed: int = 0, device: str = "auto", reference: str | Path | None = None,
-             ) -> dict[str, Any]:
-    """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model."""
+             sampler: str | None = None, sampling_steps: int | None = None) -> dict[str, Any]:
+    """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model.
+
+    ``sampler`` / ``sampling_steps`` override a DCM's sampler (ddpm | ddim and DDIM's steps) for this run."""
     predictor = load_model(ckpt, map_location="cpu")
     if isinstance(predictor, ForceModel):
         predictor = predictor.to(resolve_device(device))
+    if sampler is not None or sampling_steps is not None:
+        if not isinstance(predictor, DCM):
+            raise ModelInputError(f"sampler / sampling_steps apply to a DCM checkpoint, not to {ckpt}")
+        predictor.set_sampler(sampler, sampling_steps)
     loaded = load_dataset(dataset, split=None if split == "all" else split)
     cond_channels, target_channels = dataset_channels(loaded)
     check_dataset(predictor, cond_channels, target_channels, loaded.control_hz, source=f"dataset {dataset}")
@@ -134,7 +140,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise SystemExit(f"error: unknown keys {unknown} / missing keys {missing}; see python -m dcm.evaluate --help")
     try:
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
-                          seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference)
+                          seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference,
+                          sampler=cfg.sampler, sampling_steps=cfg.sampling_steps)
     except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
         raise SystemExit(f"error: {err}") from None
     out = Path(str(cfg.out))

@@ -72,3 +72,22 @@ def test_residual_target_round_trip_and_prediction(cls: type) -> None:
     mean, _ = model.predict_forces(cond[..., :6].numpy(), cond[..., 6:12].numpy(), cond[..., 12:18].numpy(),
                                    cond[..., 18:].numpy())
     np.testing.assert_allclose(mean, cond[..., 6:12].numpy(), atol=1e-4)
+
+
+def test_set_sampler_switches_steps_and_checks_them() -> None:
+    model = DCM(net=dict(TINY_NET), diffusion_steps=10)
+    calls = {"n": 0}
+    net = model.inference_net
+    original = net.forward
+
+    def counting(*args, **kwargs):
+        calls["n"] += 1
+        return original(*args, **kwargs)
+
+    net.forward = counting  # type: ignore[method-assign]
+    model.fit_normalizers(torch.randn(2, 8, 24), torch.randn(2, 8, 6))
+    model.set_sampler("ddim", 5)
+    model.predict_normalized(torch.zeros(1, 8, 24))
+    assert calls["n"] == 5
+    with pytest.raises(diffusion.ScheduleError, match="divid"):
+        model.set_sampler("ddim", 3)

@@ -278,15 +278,23 @@ class DCM(ForceModel):
     def __init__(self, data_spec: dict[str, Any] | None = None, **config: Any) -> None:
         super().__init__(data_spec=data_spec, **config)
         self.noise_schedule = diffusion.NoiseSchedule(**self.cfg.schedule)
-        T, kind = self.cfg.diffusion_steps, self.cfg.prediction_type
-        self.train_scheduler = diffusion.make_scheduler("ddpm", self.noise_schedule, T, kind)
-        self.sample_scheduler = diffusion.make_scheduler(self.cfg.sampler, self.noise_schedule, T, kind)
-        # validates DDIM's divisor rule now rather than at the first validation
-        diffusion.check_inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
+        self.train_scheduler = diffusion.make_scheduler("ddpm", self.noise_schedule, self.cfg.diffusion_steps,
+                                                        self.cfg.prediction_type)
+        self.set_sampler(self.cfg.sampler, self.cfg.sampling_steps)  # checks DDIM's divisor rule now
 
     @property
     def default_samples(self) -> int:
         return int(self.cfg.n_samples)
+
+    def set_sampler(self, sampler: str | None = None, sampling_steps: int | None = None) -> None:
+        """Switch how predictions are sampled (ddpm | ddim, and DDIM's step count) without retraining: the
+        net is the same for every sampler, so evaluation and tuning can trade steps for speed."""
+        sampler = sampler or self.cfg.sampler
+        scheduler = diffusion.make_scheduler(sampler, self.noise_schedule, self.cfg.diffusion_steps,
+                                             self.cfg.prediction_type)
+        diffusion.check_inference_steps(scheduler, sampling_steps)
+        self.cfg.sampler, self.cfg.sampling_steps = sampler, sampling_steps
+        self.sample_scheduler = scheduler
 
     def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
              generator: torch.Generator | None = None) -> torch.Tensor:
