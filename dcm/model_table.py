@@ -1,0 +1,135 @@
+"""One table for model comparisons: every model over its seeds, beside the references, on named splits.
+
+    python -m dcm.model_table --dataset data/sim.h5 --splits valid test \
+        --runs "DCM=outputs/train/dcm_s*" "baseline=outputs/train/baseline_s*" --out reports/models_sim.md
+
+Each run directory's selected checkpoint (``summary.json``'s ``best_checkpoint``, else ``last.ckpt``) is scored
+by :func:`dcm.evaluate.evaluate` on each split; the result is cached next to the run
+(``eval_<dataset>_<split>[_<tag>].json``) so re-running the table costs nothing. Cells give the median over
+seeds and the range. The references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's train
+split) come from the same evaluations, so they sit on exactly the trajectories the models were scored on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+COLUMNS = (("force_rmse_N", "force RMSE [N]"), ("force_rmse_ratio_copy", "÷ copy-F_demo"),
+           ("R_within", "R within skill"), ("R_within_spearman", "Spearman within"), ("R_pooled", "R pooled"))
+
+
+def run_checkpoint(run_dir: Path) -> Path:
+    """The checkpoint a run selected (on its monitor), or its last one."""
+    summary = run_dir / "summary.json"
+    if summary.is_file():
+        best = json.loads(summary.read_text()).get("best_checkpoint")
+        if best and Path(best).is_file():
+            return Path(best)
+    last = run_dir / "checkpoints" / "last.ckpt"
+    if not last.is_file():
+        raise FileNotFoundError(f"{run_dir}: no summary.json best_checkpoint and no checkpoints/last.ckpt")
+    return last
+
+
+def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overrides: Any) -> dict[str, Any]:
+    """``dcm.evaluate.evaluate`` of the run's checkpoint, cached in the run directory."""
+    from dcm.evaluate import evaluate
+
+    name = f"eval_{dataset.stem}_{split}{'_' + tag if tag else ''}.json"
+    path = run_dir / name
+    ckpt = run_checkpoint(run_dir)
+    if path.is_file():
+        cached = json.loads(path.read_text())
+        if cached.get("ckpt") == str(ckpt.resolve()):
+            return cached
+    result = evaluate(ckpt, dataset, split=split, **overrides)
+    path.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def cell(values: list[float]) -> str:
+    """Median over seeds, with the range when there is more than one seed."""
+    values = [v for v in values if v is not None and np.isfinite(v)]
+    if not values:
+        return "–"
+    if len(values) == 1:
+        return f"{values[0]:.3f}"
+    return f"{np.median(values):.3f} [{min(values):.3f}–{max(values):.3f}]"
+
+
+def table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: list[str]) -> str:
+    """Markdown: one row per model (and reference), one column group per split."""
+    head = ["model", "seeds"] + [f"{s}: {label}" for s in splits for _, label in COLUMNS]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for label, per_split in rows.items():
+        n = max(len(v) for v in per_split.values())
+        cells = [label, str(n)]
+        for split in splits:
+            results = per_split.get(split, [])
+            cells += [cell([r.get(key) for r in results]) for key, _ in COLUMNS]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def collect(runs: dict[str, list[Path]], dataset: Path, splits: list[str], tag: str = "",
+            **overrides: Any) -> dict[str, dict[str, list[dict[str, Any]]]]:
+    """Evaluations per model label and split, plus the two reference rows from the first run's evaluation."""
+    rows: dict[str, dict[str, list[dict[str, Any]]]] = {}
+    refs: dict[str, dict[str, list[dict[str, Any]]]] = {"copy-F_demo": {}, "stiffness-only ridge": {}}
+    for label, dirs in runs.items():
+        rows[label] = {}
+        for split in splits:
+            results = [cached_eval(d, dataset, split, tag, **overrides) for d in dirs]
+            rows[label][split] = results
+            if results and split not in refs["copy-F_demo"]:
+                ref = results[0].get("references", {})
+                copy = ref.get("copy_demo", {})
+                refs["copy-F_demo"][split] = [copy] if copy else []
+                ridge = ref.get("stiffness_ridge", {})
+                refs["stiffness-only ridge"][split] = [ridge] if "R_within" in ridge else []
+    rows.update(refs)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> str:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--dataset", required=True, type=Path)
+    parser.add_argument("--splits", nargs="+", default=["valid", "test"])
+    parser.add_argument("--runs", nargs="+", required=True, help='LABEL=GLOB of run directories, e.g. "DCM=outputs/train/dcm_s*"')
+    parser.add_argument("--sampler", default=None, help="DCM sampler override (ddpm | ddim)")
+    parser.add_argument("--sampling-steps", type=int, default=None)
+    parser.add_argument("--n-samples", type=int, default=None)
+    parser.add_argument("--out", type=Path, default=None, help="write the Markdown table here")
+    argv = sys.argv[1:] if argv is None else argv
+    args = parser.parse_args(argv)
+    runs: dict[str, list[Path]] = {}
+    for spec in args.runs:
+        label, sep, pattern = spec.partition("=")
+        if not sep:
+            parser.error(f"--runs {spec!r}: expected LABEL=GLOB")
+        dirs = sorted(Path(p) for p in glob.glob(pattern) if Path(p).is_dir())
+        if not dirs:
+            parser.error(f"--runs {spec!r}: no run directory matches {pattern!r}")
+        runs[label] = dirs
+    overrides = {k: v for k, v in (("sampler", args.sampler), ("sampling_steps", args.sampling_steps),
+                                   ("n_samples", args.n_samples)) if v is not None}
+    tag = "_".join(f"{k}{v}" for k, v in overrides.items())
+    text = table(collect(runs, args.dataset, args.splits, tag, **overrides), args.splits)
+    header = (f"Dataset `{args.dataset}`; median [range] over seeds; checkpoints selected on val/R_within. "
+              f"Command: `python -m dcm.model_table {' '.join(argv)}`")
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(header + "\n\n" + text + "\n")
+    print(text)
+    return text
+
+
+if __name__ == "__main__":
+    main()
