@@ -1,0 +1,74 @@
+"""The box every stiffness search explores, and the ask/tell interface every strategy implements.
+
+One home for both dataset generation (:mod:`dcm.data.generate`, the paper's robot-based trials) and tuning
+(:mod:`dcm.tuning.optimize`), so a strategy added here is available to both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+AXES = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class SearchSpace:
+    """Box of per-phase translational stiffness: ``n_phases`` × 3 values in [min_Npm, max_Npm]."""
+
+    n_phases: int = 3
+    min_Npm: float = 100.0
+    max_Npm: float = 1500.0
+    log: bool = False  # sample log-uniformly (spreads trials over the soft end too)
+
+    def __post_init__(self) -> None:
+        if self.n_phases < 1:
+            raise ValueError(f"search space n_phases={self.n_phases} must be >= 1")
+        if not 0 < self.min_Npm < self.max_Npm:
+            raise ValueError(f"stiffness bounds must satisfy 0 < min_Npm < max_Npm, got {self.min_Npm}, {self.max_Npm}")
+
+    @property
+    def dim(self) -> int:
+        """Number of searched values (P × 3)."""
+        return self.n_phases * len(AXES)
+
+    def param_names(self) -> list[str]:
+        return [f"K{axis}_phase{p}" for p in range(self.n_phases) for axis in AXES]
+
+    def to_array(self, params: dict[str, float]) -> np.ndarray:
+        return np.array([params[name] for name in self.param_names()], dtype=np.float64).reshape(self.n_phases, 3)
+
+    def to_unit(self, stiffness: np.ndarray) -> np.ndarray:
+        """(..., P, 3) N/m -> (..., P·3) in [0, 1] (in log space when ``log``), for model-based strategies."""
+        values = np.asarray(stiffness, dtype=np.float64).reshape(*np.shape(stiffness)[:-2], self.dim)
+        low, high, values = self._scale(values)
+        return (values - low) / (high - low)
+
+    def from_unit(self, unit: np.ndarray) -> np.ndarray:
+        """(..., P·3) in [0, 1] -> (..., P, 3) N/m, clipped into the box."""
+        unit = np.clip(np.asarray(unit, dtype=np.float64), 0.0, 1.0)
+        low, high, _ = self._scale(np.zeros(0))
+        values = low + unit * (high - low)
+        if self.log:
+            values = np.exp(values)
+        values = np.clip(values, self.min_Npm, self.max_Npm)  # exp/log round-off must not leave the box
+        return values.reshape(*unit.shape[:-1], self.n_phases, len(AXES))
+
+    def _scale(self, values: np.ndarray) -> tuple[float, float, np.ndarray]:
+        if self.log:
+            return float(np.log(self.min_Npm)), float(np.log(self.max_Npm)), np.log(values)
+        return self.min_Npm, self.max_Npm, values
+
+
+class StiffnessSearch(Protocol):
+    """ask() proposes (P, 3) stiffness in N/m; tell() reports (L_task, L_comp), or None for a failed trial.
+
+    Asks may run ahead of tells (a batch is asked, evaluated together, then told in order); tell() always
+    reports the oldest proposal not yet told.
+    """
+
+    def ask(self) -> np.ndarray: ...
+
+    def tell(self, objectives: tuple[float, float] | None) -> None: ...
