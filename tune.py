@@ -2,6 +2,7 @@
 
 See conf/tune.yaml for every option. Writes results.json, pareto.png and solution_forces.png to the run
 directory; a killed run resumes with the same command plus `hydra.run.dir=<that run directory>`.
+A setting that cannot work stops the run with one line on stderr (`error: ...`) and exit code 1.
 """
 
 from pathlib import Path
@@ -14,9 +15,13 @@ from omegaconf import DictConfig
 def main(cfg: DictConfig) -> None:
     from dcm.tuning.run import tune
 
-    results = tune(cfg, Path(cfg.out_dir))
+    try:
+        results = tune(cfg, Path(cfg.out_dir))
+    except (ValueError, OSError) as err:  # TuneConfigError, TrialLogMismatch, ModelInputError, DemoSpecError, ...
+        raise SystemExit(f"error: {' '.join(str(err).split())}") from None
     free, robot = results["robot_free"], results["robot_based"]
-    print(f"robot-free: {free['n_virtual_trials']} virtual trials in {free['seconds']:.1f} s, "
+    print(f"robot-free: {free['n_virtual_trials']} virtual trials in {free['seconds']:.1f} s "
+          f"(model {free['seconds_model']:.1f} s, optimiser {free['seconds_optimiser']:.1f} s), "
           f"{free['n_validated']} solutions validated, hypervolume {free['hypervolume']:.4g}")
     if robot["hypervolume"] is not None:
         print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s, "

@@ -16,7 +16,7 @@ import pytest
 from dcm.data.generate import GenerationError, compose_config, generate
 from dcm.data.merge import merge_shards, part_trajectories, write_part
 from dcm.data.schema import FIELDS, load_dataset
-from dcm.data.search import MOTPESearch, RandomSearch, SearchSpace
+from dcm.search import MOTPESearch, RandomSearch, SearchSpace
 
 REPO = Path(__file__).resolve().parents[1]
 

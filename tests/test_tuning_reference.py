@@ -17,7 +17,7 @@ from dcm.tuning.run import tune
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = ["embodiment=tool", "robot_free.n_trials=12", "robot_free.batch_size=6", "robot_free.n_validate=2",
-         "robot_based.n_trials=2", "search.options.n_startup_trials=4"]
+         "robot_based.n_trials=5", "search.options.n_startup_trials=4"]
 
 
 def _short_demo(tmp_path: Path) -> Path:

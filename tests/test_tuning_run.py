@@ -1,4 +1,5 @@
-"""tune.py end to end on the fast tool embodiment: virtual trials, validation, hypervolume, resume."""
+"""tune.py end to end on the fast tool embodiment: virtual trials, validation, hypervolume, resume,
+reproducibility with a seed, trial-log fingerprints and the sampler override."""
 
 from __future__ import annotations
 
@@ -8,14 +9,16 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import pytest
+import torch
 import yaml
 from hydra import compose, initialize_config_dir
 
 from dcm.data.datamodule import DCMDataModule
 from dcm.models.dcm import DCM
+from dcm.models.predict import load_model
 from dcm.tuning.compare import compare
-from dcm.tuning.optimize import TrialLog
-from dcm.tuning.run import tune
+from dcm.tuning.optimize import TrialLog, TrialLogMismatch
+from dcm.tuning.run import TuneConfigError, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,48 +41,140 @@ def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFa
     return path
 
 
-def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int):
+def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int, *extra: str):
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
         return compose("tune", overrides=[
             f"ckpt={ckpt}", f"demo_file={demo}", "embodiment=tool", f"out_dir={out_dir}",
             f"robot_free.n_trials={robot_free_trials}", "robot_free.batch_size=8", "robot_free.n_validate=3",
-            "robot_based.n_trials=4", "search.options.n_startup_trials=4",
+            "robot_based.n_trials=5", "search.options.n_startup_trials=4", *extra,
         ])
 
 
-def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, tmp_path: Path):
+def _short_demo(tmp_path: Path, **changes) -> Path:
     spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
     spec["duration_s"], spec["approach_s"] = 2.0, 0.4
-    demo = tmp_path / "short_wave.yaml"
+    spec.update(changes)
+    demo = tmp_path / f"short_wave{len(changes)}.yaml"
     demo.write_text(yaml.safe_dump(spec))
+    return demo
+
+
+def _numbers(results: dict) -> dict:
+    """results.json without its timings."""
+    if isinstance(results, dict):
+        return {k: _numbers(v) for k, v in results.items() if "seconds" not in k}
+    if isinstance(results, list):
+        return [_numbers(v) for v in results]
+    return results
+
+
+DDPM = ["robot_free.sampler=ddpm", "robot_free.sampling_steps=null"]  # noise at every step: the hardest to reproduce
+
+
+def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, tmp_path: Path):
+    demo = _short_demo(tmp_path)
     out_dir = tmp_path / "run"
 
-    first = tune(_config(tiny_checkpoint, demo, out_dir, 16), out_dir)
+    first = tune(_config(tiny_checkpoint, demo, out_dir, 16, *DDPM), out_dir)
     assert first["robot_free"]["n_virtual_trials"] == 16
     assert 1 <= first["robot_free"]["n_validated"] <= 3
     for solution in first["robot_free"]["solutions"]:
         assert np.all(np.array(solution["phase_stiffness_Npm"]) >= 100.0)
         assert solution["validated"]["L_comp_kNpm"] == pytest.approx(solution["predicted"]["L_comp_kNpm"])
-    assert first["robot_based"]["n_trials"] == 4
+    assert first["robot_based"]["n_trials"] == 5
     assert first["robot_free"]["hypervolume"] >= 0.0 and first["robot_based"]["hypervolume"] >= 0.0
     for name in ("results.json", "pareto.png", "solution_forces.png"):
         assert (out_dir / name).stat().st_size > 0
 
     # Extending the run replays the logged virtual trials and only evaluates the new ones.
     logged = TrialLog.load(out_dir / "robot_free_trials.npz").arrays()[0]
-    second = tune(_config(tiny_checkpoint, demo, out_dir, 24), out_dir)
+    second = tune(_config(tiny_checkpoint, demo, out_dir, 24, *DDPM), out_dir)
     extended = TrialLog.load(out_dir / "robot_free_trials.npz").arrays()[0]
     assert second["robot_free"]["n_virtual_trials"] == 24
     np.testing.assert_array_equal(extended[:16], logged)
     assert json.loads((out_dir / "results.json").read_text())["robot_free"]["n_virtual_trials"] == 24
 
     # Comparing runs uses one reference point over all of them; a single run reproduces its own numbers.
-    report = compare([out_dir], robot_trials=[2, 4])
+    report = compare([out_dir], robot_trials=[2, 5])
     assert report["robot_free"][str(out_dir)] == pytest.approx(second["robot_free"]["hypervolume"])
-    assert report["robot_based"]["N=4"] == pytest.approx(second["robot_based"]["hypervolume"])
-    assert report["robot_based"]["N=2"] <= report["robot_based"]["N=4"]
-    with pytest.raises(ValueError, match="first 5"):
-        compare([out_dir], robot_trials=[5])
+    assert report["robot_based"]["N=5"] == pytest.approx(second["robot_based"]["hypervolume"])
+    assert report["robot_based"]["N=2"] <= report["robot_based"]["N=5"]
+    with pytest.raises(ValueError, match="first 6"):
+        compare([out_dir], robot_trials=[6])
+
+    # The same seed twice gives the same numbers, and the killed-and-resumed run (16, then 24 trials) gives
+    # those of an uninterrupted 24-trial run: the DCM's samples are seeded per batch.
+    uninterrupted = [tune(_config(tiny_checkpoint, demo, tmp_path / name, 24, *DDPM), tmp_path / name) for name in "ab"]
+    assert _numbers(uninterrupted[0]) == _numbers(uninterrupted[1])
+    assert _numbers(uninterrupted[0]) == _numbers(second)
+    for name in "ab":
+        np.testing.assert_array_equal(TrialLog.load(tmp_path / name / "robot_free_trials.npz").arrays()[1],
+                                      TrialLog.load(out_dir / "robot_free_trials.npz").arrays()[1])
+    assert uninterrupted[0]["predictor"]["sampler"] == "ddpm" and uninterrupted[0]["predictor"]["T"] == 5
+
+    # Runs of another skill do not share a reference point.
+    other = tmp_path / "other"
+    other.mkdir()
+    results = json.loads((out_dir / "results.json").read_text())
+    results["skill"]["demo"]["press_m"] = 0.5
+    (other / "results.json").write_text(json.dumps(results))
+    with pytest.raises(ValueError, match="tuned another skill .*demo.press_m"):
+        compare([out_dir, other], robot_trials=[])
+
+
+def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoint: Path, tmp_path: Path):
+    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    small = ["robot_based.n_trials=0"]
+    first = tune(_config(tiny_checkpoint, demo, out_dir, 8, *small), out_dir)
+    assert first["predictor"]["sampler"] == "ddim" and first["predictor"]["sampling_steps"] == 5  # the default
+    # another checkpoint: the same model with one weight changed (as a baseline's file would differ)
+    other_ckpt = tmp_path / "other.ckpt"
+    saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=False)
+    name = next(k for k, v in saved["state_dict"].items() if v.is_floating_point())
+    saved["state_dict"][name] = saved["state_dict"][name] + 0.01
+    torch.save(saved, other_ckpt)
+    with pytest.raises(TrialLogMismatch) as err:
+        tune(_config(other_ckpt, demo, out_dir, 8, *small), out_dir)
+    message = str(err.value)
+    assert "\n" not in message and f"{out_dir / 'robot_free_trials.npz'}: cannot resume its 8 trials" in message
+    assert f"predictor: {tiny_checkpoint} (sha256 " in message and f"-> {other_ckpt} (sha256 " in message
+    assert "overwrite=true" in message
+    # another demo
+    with pytest.raises(TrialLogMismatch, match=r"demo.press_m: 0.01 -> 0.012"):
+        tune(_config(tiny_checkpoint, _short_demo(tmp_path, press_m=0.012), out_dir, 8, *small), out_dir)
+    # another sampler, then overwrite=true proceeds and the log is rewritten with the new settings
+    ddpm = ["robot_free.sampler=ddpm", "robot_free.sampling_steps=null"]
+    with pytest.raises(TrialLogMismatch, match=r"predictor.sampler: ddim -> ddpm"):
+        tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, *ddpm), out_dir)
+    redone = tune(_config(other_ckpt, demo, out_dir, 8, *small, *ddpm, "overwrite=true"), out_dir)
+    assert redone["predictor"]["sampler"] == "ddpm" and redone["predictor"]["sampling_steps"] == 5
+    assert redone["predictor"]["sha256"] != first["predictor"]["sha256"]
+    logged = TrialLog.load(out_dir / "robot_free_trials.npz").fingerprint
+    assert logged["predictor_sha256"] == redone["predictor"]["sha256"]
+
+
+def test_the_sampler_override_changes_the_denoising_steps(tiny_checkpoint: Path):
+    x = np.zeros((40, 6))
+    K = np.full((40, 6), 500.0)
+
+    def net_calls(model) -> int:
+        calls = []
+        hook = model.inference_net.register_forward_hook(lambda *args: calls.append(1))
+        model.predict_forces(x, x, x, K, generator=torch.Generator().manual_seed(0))
+        hook.remove()
+        return len(calls)
+
+    model = load_model(tiny_checkpoint)
+    assert model.cfg.diffusion_steps == 5 and net_calls(model) == 5  # the checkpoint's DDPM over T = 5
+    assert not use_sampler(model, None, None) and net_calls(model) == 5  # nothing asked: nothing changed
+    assert use_sampler(model, "ddim", 1) and net_calls(model) == 1
+    assert model.cfg.sampler == "ddim" and model.cfg.sampling_steps == 1
+    fresh = load_model(tiny_checkpoint)
+    assert use_sampler(fresh, "ddim", None) and net_calls(fresh) == 5  # another sampler, no steps given: T
+    assert use_sampler(fresh, None, 1) and net_calls(fresh) == 1  # steps alone keep the sampler
+    with pytest.raises(TuneConfigError, match="robot_free.sampling_steps = 2 with robot_free.sampler = ddim: .*T=5"):
+        use_sampler(model, "ddim", 2)
+    assert not use_sampler(object(), "ddim", 1)  # predictors that do not diffuse are left alone
 
 
 def test_tune_refuses_a_checkpoint_of_another_control_rate(tiny_checkpoint: Path, tmp_path: Path):

@@ -111,9 +111,8 @@ class BoTorchSearch:
     # --- planning -----------------------------------------------------------------------------------------
     def _plan(self) -> list[np.ndarray]:
         """The next batch on the unit cube: Sobol points during start-up (or with nothing to model), else qLogNEHVI."""
-        asked_or_queued = self.n_asked
-        if asked_or_queued < self.n_startup_trials:
-            return self._sobol(min(self.batch_size, self.n_startup_trials - asked_or_queued))
+        if self.n_asked < self.n_startup_trials:  # the queue is empty here: asked = everything planned so far
+            return self._sobol(min(self.batch_size, self.n_startup_trials - self.n_asked))
         train_x, train_y = self._training_data()
         if train_x is None:
             return self._sobol(self.batch_size)

@@ -4,10 +4,12 @@
 through :func:`dcm.models.predict.predict_task_loss`.
 ``SimulatorObjective`` is robot-based: every proposal is a simulator rollout. Both return (B, 2) arrays of
 (L_task [N], L_comp [kN/m]), with NaN rows for failed trials, so one optimisation loop serves both.
+Both are called as ``objective(proposals, first)``, ``first`` being the index of the batch's first trial.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,14 +32,39 @@ class Skill:
         return np.stack([schedule_from_phases(p, self.boundaries, self.rot_Nmprad) for p in proposals])
 
 
-class ModelObjective:
-    """L_task predicted by any predictor :func:`dcm.models.predict.load_model` returns; L_comp is exact."""
+def batch_seed(seed: int, first_trial: int) -> int:
+    """The torch seed of the model samples of the batch that starts at trial ``first_trial`` of a run seeded
+    ``seed``: a function of the two alone, so a resumed run draws the same noise for its later batches as an
+    uninterrupted one (one running generator would not: a resumed run replays the logged batches unevaluated)."""
+    state = np.random.SeedSequence([int(seed), 0x7E5E, int(first_trial)]).generate_state(2, dtype=np.uint32)
+    return int(state[0]) << 32 | int(state[1])
 
-    def __init__(self, model: Any, skill: Skill, attractor: Any, n_samples: int = 1):
+
+class ModelObjective:
+    """L_task predicted by any predictor :func:`dcm.models.predict.load_model` returns; L_comp is exact.
+
+    A diffusion model's samples of each batch come from a ``torch.Generator`` seeded with
+    :func:`batch_seed` ``(seed, first trial of the batch)``, so the same seed gives the same predictions.
+    ``seconds_inputs`` / ``seconds_model`` accumulate the time spent building inputs (schedules, attractors)
+    and in the predictor.
+    """
+
+    def __init__(self, model: Any, skill: Skill, attractor: Any, n_samples: int = 1, seed: int = 0):
         self.model = model
         self.skill = skill
         self.attractor = attractor  # callable (H, 6) stiffness -> (H, 6) attractor, as the simulator computes it
         self.n_samples = n_samples
+        self.seed = int(seed)
+        self.seconds_inputs = 0.0
+        self.seconds_model = 0.0
+
+    def generator(self, first_trial: int) -> Any:
+        """The seeded generator for the batch starting at ``first_trial`` (None for a predictor without torch)."""
+        if not hasattr(self.model, "predict_forces") or not hasattr(self.model, "device"):
+            return None
+        import torch
+
+        return torch.Generator(device=self.model.device).manual_seed(batch_seed(self.seed, first_trial))
 
     def inputs(self, proposals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Raw predictor inputs (x_demo, F_demo, x_attr, K), each (B, H, 6), for (B, P, 3) proposals."""
@@ -48,21 +75,48 @@ class ModelObjective:
         force_demo = np.repeat(self.skill.force_demo[None], batch, axis=0)
         return x_demo, force_demo, x_attr, stiffness
 
-    def predict(self, proposals: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    def predict(self, proposals: np.ndarray, first_trial: int = 0
+                ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """Schedules (B, H, 6), predicted mean force (B, H, 6) [N] and its spread; None for a predictor
-        without forces (the stiffness-only reference)."""
+        without forces (the stiffness-only reference). Seeded like the batch starting at ``first_trial``."""
         x_demo, force_demo, x_attr, stiffness = self.inputs(proposals)
         if not hasattr(self.model, "predict_forces"):
             return stiffness, None, None
-        mean, std = self.model.predict_forces(x_demo, force_demo, x_attr, stiffness, n_samples=self.n_samples)
+        with _inference_mode():
+            mean, std = self.model.predict_forces(x_demo, force_demo, x_attr, stiffness, n_samples=self.n_samples,
+                                                  generator=self.generator(first_trial))
         return stiffness, np.asarray(mean), np.asarray(std)
 
-    def __call__(self, proposals: np.ndarray) -> np.ndarray:
+    def __call__(self, proposals: np.ndarray, first_trial: int = 0) -> np.ndarray:
         from dcm.models.predict import predict_task_loss  # torch-heavy: only when a model is used
 
+        t0 = time.perf_counter()
         x_demo, force_demo, x_attr, stiffness = self.inputs(proposals)
-        L_task = predict_task_loss(self.model, x_demo, force_demo, x_attr, stiffness, n_samples=self.n_samples)
+        t1 = time.perf_counter()
+        with _inference_mode():
+            L_task = predict_task_loss(self.model, x_demo, force_demo, x_attr, stiffness, n_samples=self.n_samples,
+                                       generator=self.generator(first_trial))
+        t2 = time.perf_counter()
+        self.seconds_inputs += t1 - t0
+        self.seconds_model += t2 - t1
         return np.stack([L_task, compliance_loss(stiffness)], axis=1)
+
+
+class _inference_mode:
+    """``torch.inference_mode()`` when torch is importable (it is whenever a force model is loaded)."""
+
+    def __enter__(self) -> None:
+        try:
+            import torch
+        except ImportError:  # pragma: no cover - the stiffness reference needs no torch
+            self._ctx = None
+            return
+        self._ctx = torch.inference_mode()
+        self._ctx.__enter__()
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._ctx is not None:
+            self._ctx.__exit__(*exc)
 
 
 class SimulatorObjective:
@@ -74,7 +128,7 @@ class SimulatorObjective:
         self.skill = skill
         self.trials: list[Any] = []
 
-    def __call__(self, proposals: np.ndarray) -> np.ndarray:
+    def __call__(self, proposals: np.ndarray, first_trial: int = 0) -> np.ndarray:
         scores = []
         for stiffness in self.skill.schedules(proposals):
             trial = self.simulator.rollout(self.demo, stiffness)

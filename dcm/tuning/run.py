@@ -1,30 +1,46 @@
 """Robot-free stiffness tuning of one new skill, validated in the simulator and compared with robot-based search.
 
 Steps (each resumable from the run directory):
+0. check every setting (:func:`check_config`), load the predictor and check it against the skill, and check
+   that the run directory's trial logs were written by these settings (their *fingerprint*);
 1. record the new skill's demo in the simulator;
 2. robot-free search: ``robot_free.n_trials`` virtual trials, L_task predicted by the checkpoint (or by a
    stiffness reference JSON, ``python -m dcm.models.references fit``; ``copy_demo`` is refused: it ranks nothing);
 3. validate up to ``robot_free.n_validate`` solutions spread along the predicted Pareto front in the simulator;
 4. robot-based search: ``robot_based.n_trials`` simulated trials with the same strategy;
 5. hypervolume I_H of both, against one reference point, written to ``results.json`` with figures.
+
+A diffusion model's samples are seeded per batch from ``(seed, first trial of the batch)``, so the same
+settings give the same numbers, and a killed run resumed from its logs gives the numbers of an uninterrupted one.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from dcm.control import phase_boundaries
-from dcm.data.search import SearchSpace, make_search
+from dcm.search import SearchSpace, check_budget, make_search
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
-from dcm.tuning.optimize import TrialLog, optimize
+from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
 from dcm.tuning.pareto import hypervolume, pareto_mask, reference_point
 from dcm.tuning.report import plot_pareto, plot_solution_forces
+
+FREE_LOG = "robot_free_trials.npz"
+ROBOT_LOG = "robot_based_trials.npz"
+SAMPLERS = ("ddpm", "ddim")
+PLOT_BATCH = 2**31  # the figure's prediction is seeded like a batch no run reaches
+
+
+class TuneConfigError(ValueError):
+    """A tune.py setting that cannot work; the message names the setting, its value and what is allowed."""
 
 
 def pick_spread(objectives: np.ndarray, count: int) -> np.ndarray:
@@ -37,53 +53,299 @@ def pick_spread(objectives: np.ndarray, count: int) -> np.ndarray:
     return front[np.unique(np.round(np.linspace(0, len(front) - 1, count)).astype(int))]
 
 
-def resolve_device(name: str) -> str:
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    return name
-
-
-def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
-    """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds."""
+# ----------------------------------------------------------------------------------------------- checks
+def _plain(value: Any) -> Any:
     from omegaconf import OmegaConf
 
-    from dcm.data.generate import resolve_domain
-    from dcm.models.predict import load_model
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+
+
+def _integer(value: Any, key: str, minimum: int, note: str = "") -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise TuneConfigError(f"{key} = {value!r} must be an integer >= {minimum}{note}")
+    return value
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise TuneConfigError(f"{key} = {value!r} must be a finite number")
+    return float(value)
+
+
+def _check_stiffness(stiffness: Any) -> SearchSpace:
+    from dcm.control import DAMPING_MODES, StiffnessLimits
+
+    limits = StiffnessLimits()
+    n_phases = _integer(stiffness.n_phases, "stiffness.n_phases", 1)
+    low, high = _number(stiffness.min_Npm, "stiffness.min_Npm"), _number(stiffness.max_Npm, "stiffness.max_Npm")
+    rot = _number(stiffness.rot_Nmprad, "stiffness.rot_Nmprad")
+    for key, value, lo, hi, unit in (("min_Npm", low, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
+                                     ("max_Npm", high, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
+                                     ("rot_Nmprad", rot, limits.rot_min_Nmprad, limits.rot_max_Nmprad, "N·m/rad")):
+        if value > hi:
+            raise TuneConfigError(f"stiffness.{key} = {value:g} is above the controller's limit {hi:g} {unit}")
+        if value < lo:
+            raise TuneConfigError(f"stiffness.{key} = {value:g} is below the controller's limit {lo:g} {unit}")
+    if low >= high:
+        raise TuneConfigError(f"stiffness.min_Npm = {low:g} must be below stiffness.max_Npm = {high:g}")
+    if stiffness.damping not in DAMPING_MODES:
+        raise TuneConfigError(f"stiffness.damping = {stiffness.damping!r}; expected one of {', '.join(DAMPING_MODES)}")
+    if not isinstance(stiffness.log, bool):
+        raise TuneConfigError(f"stiffness.log = {stiffness.log!r} must be true or false")
+    return SearchSpace(n_phases, low, high, stiffness.log)
+
+
+def _check_search(cfg: Any, space: SearchSpace) -> None:
+    """The strategy builds, its budget covers both searches, and each search outlasts its random start-up."""
+    name, options = cfg.search.name, _plain(cfg.search.options) or {}
+    try:
+        search = make_search(name, space, 0, **options)
+    except (TypeError, ValueError) as err:
+        raise TuneConfigError(f"search={name} with options {options}: {' '.join(str(err).split())}") from None
+    startup = options.get("n_startup_trials")
+    for key in ("robot_free.n_trials", "robot_based.n_trials"):
+        n = cfg.robot_free.n_trials if key == "robot_free.n_trials" else cfg.robot_based.n_trials
+        if n == 0:
+            continue  # robot_based.n_trials = 0 skips the robot-based search
+        try:
+            check_budget(search, n)
+        except ValueError as err:
+            raise TuneConfigError(f"{key} = {n}: {' '.join(str(err).split())}") from None
+        if isinstance(startup, int) and n <= startup:
+            raise TuneConfigError(
+                f"{key} = {n} is not above search.options.n_startup_trials = {startup}: every trial would be a "
+                f"random start-up trial, not {name}; raise {key} or lower search.options.n_startup_trials"
+                + (" (robot_based.n_trials=0 skips the robot-based search)" if key.startswith("robot_based") else ""))
+
+
+def min_compliance_loss(space: SearchSpace) -> float:
+    """The lowest L_comp [kN/m] any schedule of ``space`` reaches: every translational axis at ``min_Npm``."""
+    return math.sqrt(3.0) * space.min_Npm / 1000.0
+
+
+def _check_reference_point(value: Any, space: SearchSpace) -> np.ndarray | None:
+    value = _plain(value)
+    if value is None:
+        return None
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise TuneConfigError(f"reference_point = {value!r} must be null or [L_task_N, L_comp_kNpm]")
+    task, comp = (_number(v, f"reference_point[{i}]") for i, v in enumerate(value))
+    if task <= 0:
+        raise TuneConfigError(f"reference_point = [{task:g}, {comp:g}]: nothing can dominate it: L_task >= 0 N "
+                              "for every schedule; choose an L_task above 0 (or reference_point=null)")
+    lowest = min_compliance_loss(space)
+    if comp <= lowest:
+        raise TuneConfigError(
+            f"reference_point = [{task:g}, {comp:g}]: nothing can dominate it: L_comp >= {lowest:.4g} kN/m for "
+            f"every schedule with stiffness.min_Npm = {space.min_Npm:g}; choose an L_comp above it "
+            "(or reference_point=null)")
+    return np.array([task, comp])
+
+
+@dataclass(frozen=True)
+class CheckedConfig:
+    """What :func:`check_config` parsed on the way."""
+
+    spec: Any  # dcm.sim.demos.DemoSpec of the new skill
+    domain: Any  # dcm.sim.domain.DomainSpec
+    space: SearchSpace
+    reference: np.ndarray | None  # the configured hypervolume reference point, None: automatic
+
+
+def check_config(cfg: Any) -> CheckedConfig:
+    """Check every setting of ``conf/tune.yaml`` that can be checked without the model or the simulator.
+
+    Takes well under a second; raises :class:`TuneConfigError` (or the demo/domain spec's own ValueError)
+    with one line naming the setting.
+    """
+    from omegaconf import OmegaConf
+
     from dcm.sim.demos import DemoSpec
-    from dcm.sim.rollout import Simulator
+    from dcm.sim.domain import DomainSpec
+    from dcm.sim.rollout import EMBODIMENTS
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    model = load_model(cfg.ckpt, map_location=resolve_device(cfg.device))
-    if not getattr(model, "ranks_schedules", True):
-        raise ValueError(f"ckpt={cfg.ckpt} cannot tune: it predicts F_obs = F_demo, hence L_task = 0, for every "
-                         "stiffness schedule, so it cannot rank them; use a checkpoint or a stiffness reference "
-                         "JSON (python -m dcm.models.references fit)")
-    if hasattr(model, "check_phases"):  # the stiffness reference reads K as per-phase values
-        model.check_phases(cfg.stiffness.n_phases, source="tune stiffness.n_phases")
-    spec_model = model.data_spec
-    spec_model.check(spec_model.cond_channels, spec_model.target_channels, cfg.control_hz,
-                     source=f"tune.control_hz for {cfg.ckpt}")
-
+    if OmegaConf.is_missing(cfg, "ckpt") or cfg.ckpt in (None, ""):
+        raise TuneConfigError("ckpt is required: python tune.py ckpt=<model.ckpt | reference.json>")
+    free, robot = cfg.robot_free, cfg.robot_based
+    _integer(free.n_trials, "robot_free.n_trials", 1)
+    _integer(free.batch_size, "robot_free.batch_size", 1)
+    _integer(free.n_samples, "robot_free.n_samples", 1)
+    _integer(free.n_validate, "robot_free.n_validate", 1)
+    _integer(robot.n_trials, "robot_based.n_trials", 0, " (0 skips the robot-based search)")
+    sampler = free.get("sampler")
+    if sampler is not None and sampler not in SAMPLERS:
+        raise TuneConfigError(f"robot_free.sampler = {sampler!r}; expected null (the checkpoint's), ddpm or ddim")
+    if free.get("sampling_steps") is not None:
+        _integer(free.sampling_steps, "robot_free.sampling_steps", 1, " or null")
+    _integer(cfg.seed, "seed", 0)
+    _number(cfg.control_hz, "control_hz")
+    if not 1.0 <= cfg.control_hz <= 500.0:
+        raise TuneConfigError(f"control_hz = {cfg.control_hz:g} is outside [1, 500] Hz")
+    if cfg.embodiment not in EMBODIMENTS:
+        raise TuneConfigError(f"embodiment = {cfg.embodiment!r}; known: {', '.join(sorted(EMBODIMENTS))}")
+    if cfg.get("torch_threads") is not None:
+        _integer(cfg.torch_threads, "torch_threads", 1, " or null")
+    if not isinstance(cfg.get("overwrite", False), bool):
+        raise TuneConfigError(f"overwrite = {cfg.overwrite!r} must be true or false")
+    space = _check_stiffness(cfg.stiffness)
+    _check_search(cfg, space)
+    reference = _check_reference_point(cfg.get("reference_point"), space)
+    domain = DomainSpec.resolve(_plain(cfg.domain))
     if cfg.demo_file:
         spec = DemoSpec.load(cfg.demo_file)
     else:
-        spec = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo, resolve=True), where="tune.demo")
-    simulator = Simulator(embodiment=cfg.embodiment, bowl=spec.bowl, domain=resolve_domain(OmegaConf.to_container(cfg.domain) if OmegaConf.is_config(cfg.domain) else cfg.domain),
-                          control_hz=cfg.control_hz, seed=cfg.seed, damping=cfg.stiffness.damping)
+        spec = DemoSpec.from_dict(_plain(cfg.demo), where="tune.demo")
+    probe = np.random.default_rng(0).normal(size=(spec.horizon(cfg.control_hz), 6))  # stands in for the demo force
+    try:
+        phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, probe)
+    except ValueError as err:
+        raise TuneConfigError(f"stiffness.phases = {cfg.stiffness.phases!r}, stiffness.n_phases = "
+                              f"{cfg.stiffness.n_phases}: {err}") from None
+    return CheckedConfig(spec, domain, space, reference)
+
+
+def check_predictor(model: Any, cfg: Any) -> None:
+    """Refuse a predictor that cannot tune this skill: one that ranks nothing, another phase count, another
+    control rate or other input/output channels than the tuner builds."""
+    from dcm.data.schema import cond_channel_names, target_channel_names
+
+    if not getattr(model, "ranks_schedules", True):
+        raise TuneConfigError(f"ckpt={cfg.ckpt} cannot tune: it predicts F_obs = F_demo, hence L_task = 0, for "
+                              "every stiffness schedule, so it cannot rank them; use a checkpoint or a stiffness "
+                              "reference JSON (python -m dcm.models.references fit)")
+    if hasattr(model, "check_phases"):  # the stiffness reference reads K as per-phase values
+        model.check_phases(cfg.stiffness.n_phases, source="tune stiffness.n_phases")
+    spec = getattr(model, "data_spec", None)
+    if spec is not None:
+        spec.check(cond_channel_names(), target_channel_names(), cfg.control_hz,
+                   source=f"tune.control_hz and the tuner's model inputs for ckpt={cfg.ckpt}")
+
+
+def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | None = None) -> bool:
+    """Make a loaded DCM sample with ``sampler`` over ``sampling_steps`` denoising steps, in this process only.
+
+    ``sampler``: ``"ddpm"`` (ancestral) or ``"ddim"`` (deterministic given the start noise); None keeps the
+    checkpoint's. ``sampling_steps``: steps of the chain (DDIM: must divide T); None keeps the checkpoint's
+    when the sampler is unchanged, else T. :meth:`dcm.models.dcm.DCM.set_sampler` does the switch: it builds
+    the scheduler the way ``DCM.__init__`` does (``dcm.models.diffusion.make_scheduler`` with the model's noise
+    schedule, T and prediction type) and sets ``model.sample_scheduler`` and ``model.cfg.sampler`` /
+    ``model.cfg.sampling_steps``; the checkpoint file is not touched. Predictors that do not diffuse (baseline,
+    stiffness reference) are left alone. Returns whether ``model`` was changed; raises
+    :class:`TuneConfigError` naming ``robot_free.sampling_steps`` for a step count the sampler cannot run.
+    """
+    from dcm.models.dcm import DCM
+
+    if not isinstance(model, DCM) or (sampler is None and sampling_steps is None):
+        return False
+    kind = model.cfg.sampler if sampler is None else sampler
+    steps = sampling_steps
+    if steps is None and kind == model.cfg.sampler:
+        steps = model.cfg.sampling_steps
+    try:
+        model.set_sampler(kind, steps)
+    except ValueError as err:
+        raise TuneConfigError(f"robot_free.sampling_steps = {steps} with robot_free.sampler = {kind}: "
+                              f"{' '.join(str(err).split())} (robot_free.sampling_steps=null runs all T steps)"
+                              ) from None
+    return True
+
+
+# ----------------------------------------------------------------------------------------------- fingerprints
+def file_sha256(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def fingerprints(cfg: Any, spec: Any, domain: Any, model: Any, device: Any) -> dict[str, dict[str, Any]]:
+    """What determines each trial log's values (the ``skill`` part is also what compared runs must share).
+
+    ``skill``: demo spec, embodiment, domain, damping, control rate, stiffness space, seed.
+    ``robot_based``: skill + search settings. ``robot_free``: that + the predictor's content hash and how it
+    samples (sampler, steps, samples per prediction), the batch size and the device type.
+    """
+    from dcm.models.predict import describe
+
+    stiffness = _plain(cfg.stiffness)
+    skill = {
+        "demo": spec.to_dict(),
+        "embodiment": cfg.embodiment,
+        "domain": domain.to_dict(),
+        "damping": stiffness["damping"],
+        "control_hz": float(cfg.control_hz),
+        "stiffness": {k: stiffness[k] for k in ("n_phases", "phases", "min_Npm", "max_Npm", "log", "rot_Nmprad")},
+        "seed": int(cfg.seed),
+    }
+    robot = {**skill, "search": {"name": cfg.search.name, "options": _plain(cfg.search.options) or {}}}
+    sampling = {k: v for k, v in describe(model, cfg.robot_free.n_samples).items() if k != "ckpt"}
+    free = {**robot, "predictor_sha256": file_sha256(cfg.ckpt), "predictor": sampling,
+            "n_samples": int(cfg.robot_free.n_samples), "batch_size": int(cfg.robot_free.batch_size),
+            "device": getattr(device, "type", str(device))}
+    plain = lambda d: json.loads(json.dumps(d, default=_jsonable))  # noqa: E731 - what a log stores and reloads
+    return {"skill": plain(skill), "robot_based": plain(robot), "robot_free": plain(free)}
+
+
+def _jsonable(value: Any) -> Any:
+    return value.tolist() if hasattr(value, "tolist") else str(value)
+
+
+# ----------------------------------------------------------------------------------------------- the run
+def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
+    """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds."""
+    from dcm.cli import resolve_device
+    from dcm.models.predict import describe, load_model
+    from dcm.sim.rollout import Simulator
+
+    checked = check_config(cfg)
+    spec, domain, space, reference_cfg = checked.spec, checked.domain, checked.space, checked.reference
+    overwrite = bool(cfg.get("overwrite", False))
+    device = resolve_device(cfg.device, "device")
+    if cfg.get("torch_threads") is not None:
+        import torch
+
+        torch.set_num_threads(int(cfg.torch_threads))
+    model = load_model(cfg.ckpt, map_location=device)
+    check_predictor(model, cfg)
+    use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
+
+    prints = fingerprints(cfg, spec, domain, model, device)
+    notes = {"predictor": str(cfg.ckpt), "model": type(model).__name__}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    free_path, robot_path = out_dir / FREE_LOG, out_dir / ROBOT_LOG
+    # Refuse another run's logs now, not after recording the demo and an hour of trials.
+    resumable_log(free_path, prints["robot_free"], overwrite, notes)
+    if cfg.robot_based.n_trials > 0:
+        resumable_log(robot_path, prints["robot_based"], overwrite)
+
+    simulator = Simulator(embodiment=cfg.embodiment, bowl=spec.bowl, domain=domain, control_hz=cfg.control_hz,
+                          seed=cfg.seed, damping=cfg.stiffness.damping)
     demo = simulator.record_demo(spec)
     stiffness_cfg = cfg.stiffness
     boundaries = phase_boundaries(stiffness_cfg.phases, stiffness_cfg.n_phases, demo.force_demo)
     skill = Skill(demo.x_demo, demo.force_demo, boundaries, stiffness_cfg.rot_Nmprad)
-    space = SearchSpace(stiffness_cfg.n_phases, stiffness_cfg.min_Npm, stiffness_cfg.max_Npm, stiffness_cfg.log)
 
-    def new_search():
-        return make_search(cfg.search.name, space, cfg.seed, **cfg.search.options)
+    def search_loop(evaluate: Any, n_trials: int, batch_size: int, path: Path, fingerprint: dict, desc: str,
+                    times: LoopTimes, log_notes: dict | None = None) -> TrialLog:
+        def run() -> TrialLog:
+            search = make_search(cfg.search.name, space, cfg.seed, **(_plain(cfg.search.options) or {}))
+            return optimize(search, evaluate, n_trials, batch_size, path, desc=desc, fingerprint=fingerprint,
+                            overwrite=overwrite, notes=log_notes, times=times)
 
-    model_objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), cfg.robot_free.n_samples)
-    start = time.perf_counter()
-    free_log = optimize(new_search(), model_objective, cfg.robot_free.n_trials, cfg.robot_free.batch_size,
-                        out_dir / "robot_free_trials.npz", desc="robot-free (model)")
-    free_seconds = time.perf_counter() - start
+        try:
+            return run()
+        except TrialLogMismatch:
+            if not overwrite or not path.exists():
+                raise
+            path.unlink()  # same settings, but the optimiser no longer replays it: start over, as asked
+            return run()
+
+    model_objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), cfg.robot_free.n_samples,
+                                     seed=cfg.seed)
+    free_times = LoopTimes()
+    free_log = search_loop(model_objective, cfg.robot_free.n_trials, cfg.robot_free.batch_size, free_path,
+                           prints["robot_free"], "robot-free (model)", free_times, notes)
     free_params, free_predicted = free_log.arrays()
 
     chosen = pick_spread(free_predicted, cfg.robot_free.n_validate)
@@ -93,25 +355,31 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     validation_seconds = time.perf_counter() - start
 
     robot_based = np.zeros((0, 2))
-    robot_seconds = 0.0
+    robot_times = LoopTimes()
     if cfg.robot_based.n_trials > 0:
-        start = time.perf_counter()
-        robot_log = optimize(new_search(), SimulatorObjective(simulator, demo, skill), cfg.robot_based.n_trials,
-                             1, out_dir / "robot_based_trials.npz", desc="robot-based (simulator)")
-        robot_seconds = time.perf_counter() - start
+        robot_log = search_loop(SimulatorObjective(simulator, demo, skill), cfg.robot_based.n_trials, 1, robot_path,
+                                prints["robot_based"], "robot-based (simulator)", robot_times)
         robot_based = robot_log.arrays()[1]
 
     finite = lambda a: a[np.isfinite(a).all(axis=1)]  # noqa: E731
-    reference = reference_point(finite(validated), finite(robot_based))
+    reference = reference_cfg if reference_cfg is not None else reference_point(finite(validated), finite(robot_based))
     results = {
         "checkpoint": str(cfg.ckpt),
         "model": type(model).__name__,
+        "predictor": {**describe(model, cfg.robot_free.n_samples), "sha256": prints["robot_free"]["predictor_sha256"]},
         "demo": spec.to_dict(),
         "embodiment": cfg.embodiment,
-        "reference_point": {"L_task_N": reference[0], "L_comp_kNpm": reference[1]},
+        "seed": int(cfg.seed),
+        "torch_threads": _torch_threads(),
+        "skill": prints["skill"],
+        "reference_point": {"L_task_N": reference[0], "L_comp_kNpm": reference[1],
+                            "source": "reference_point" if reference_cfg is not None else "automatic"},
         "robot_free": {
             "n_virtual_trials": len(free_log),
-            "seconds": free_seconds,
+            "seconds": free_times.total,  # this invocation only: replayed trials cost no model time
+            "seconds_model": model_objective.seconds_model,
+            "seconds_inputs": model_objective.seconds_inputs,
+            "seconds_optimiser": free_times.optimiser,
             "n_validated": len(chosen),
             "validation_seconds": validation_seconds,
             "hypervolume": hypervolume(finite(validated), reference),
@@ -127,7 +395,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
         },
         "robot_based": {
             "n_trials": len(robot_based),
-            "seconds": robot_seconds,
+            "seconds": robot_times.total,
             "hypervolume": hypervolume(finite(robot_based), reference) if len(robot_based) else None,
         },
     }
@@ -139,17 +407,24 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     return results
 
 
+def _torch_threads() -> int:
+    import torch
+
+    return int(torch.get_num_threads())
+
+
 def _plot_best(path: Path, objective: ModelObjective, params: np.ndarray, validated: np.ndarray,
                trials: list[Any], demo: Any) -> None:
     """Forces of the validated solution with the lowest genuine L_task."""
     if not len(params) or np.isnan(validated[:, 0]).all():
         return
     best = int(np.nanargmin(validated[:, 0]))
-    stiffness, predicted, _ = objective.predict(params[best : best + 1])
+    stiffness, predicted, _ = objective.predict(params[best : best + 1], first_trial=PLOT_BATCH)
     plot_solution_forces(path, demo.dt, demo.force_demo, None if predicted is None else predicted[0],
                          trials[best].force_obs, stiffness[0],
                          f"validated solution {best}: L_task={validated[best, 0]:.2f} N, "
                          f"L_comp={validated[best, 1]:.2f} kN/m")
 
 
-__all__ = ["TrialLog", "pick_spread", "tune"]
+__all__ = ["TrialLog", "TuneConfigError", "check_config", "check_predictor", "fingerprints", "pick_spread", "tune",
+           "use_sampler"]

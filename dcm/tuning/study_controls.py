@@ -1,0 +1,111 @@
+"""What a study measures without a model: the fixed reference point and the model-free prior.
+
+**Reference point.** Hypervolumes compare only against one point, and a point pooled from the worst results
+lets one diverging outlier decide every I_H. The study fixes it per skill from the skill itself:
+``(task_factor × L_task of a rollout at the demo's own stiffness, comp_factor × L_comp at max stiffness)``.
+The demo's stiffness is what the demonstrator used, so "no worse than ``task_factor`` times that" is the
+accuracy a tuned schedule must reach to count at all; the stiffest schedule bounds L_comp for every
+schedule of the search space, so no solution is cut off by compliance.
+
+**Model-free prior.** ``n_levels`` constant isotropic stiffness schedules at the midpoints of ``n_levels``
+equal bins of [min_Npm, max_Npm] (5 levels, default space: 240, 520, 800, 1080, 1360 N/m), validated like a
+tuner's solutions. Constant levels rather than random schedules because: L_comp of a constant isotropic
+schedule is linear in its level, so the 5 points are spread evenly along L_comp by construction; it is what
+an engineer would try without any model; and 5 random schedules would duplicate robot-based N = 5, whose
+first ``n_startup_trials`` (10) MOTPE trials are random already. The prior is seed-independent in a
+noise-free domain, so its I_H is the same for every seed there.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dcm.control import compliance_loss, phase_boundaries
+from dcm.data.atomic import atomic_path
+from dcm.tuning.objectives import SimulatorObjective, Skill
+
+
+@dataclass
+class SkillSetup:
+    """The recorded skill of a tune config, as :func:`dcm.tuning.run.tune` builds it."""
+
+    spec: Any  # DemoSpec
+    space: Any  # SearchSpace
+    simulator: Any
+    demo: Any
+    skill: Skill
+
+    def evaluate(self, phase_stiffness: np.ndarray) -> np.ndarray:
+        """(B, P, 3) N/m -> (B, 2) simulated (L_task, L_comp); NaN rows for failed rollouts."""
+        return SimulatorObjective(self.simulator, self.demo, self.skill)(phase_stiffness)
+
+
+def setup_skill(tune_cfg: Any) -> SkillSetup:
+    """Record the demo of ``tune_cfg`` in its simulator and build its skill (the same steps as ``tune``)."""
+    from dcm.sim.rollout import Simulator
+    from dcm.tuning.run import check_config
+
+    checked = check_config(tune_cfg)
+    simulator = Simulator(embodiment=tune_cfg.embodiment, bowl=checked.spec.bowl, domain=checked.domain,
+                          control_hz=tune_cfg.control_hz, seed=tune_cfg.seed, damping=tune_cfg.stiffness.damping)
+    demo = simulator.record_demo(checked.spec)
+    boundaries = phase_boundaries(tune_cfg.stiffness.phases, tune_cfg.stiffness.n_phases, demo.force_demo)
+    skill = Skill(demo.x_demo, demo.force_demo, boundaries, tune_cfg.stiffness.rot_Nmprad)
+    return SkillSetup(checked.spec, checked.space, simulator, demo, skill)
+
+
+def max_compliance_loss(setup: SkillSetup) -> float:
+    """L_comp [kN/m] of the stiffest schedule of the search space (every axis at max_Npm)."""
+    stiffest = np.full((1, setup.space.n_phases, 3), setup.space.max_Npm)
+    return float(compliance_loss(setup.skill.schedules(stiffest))[0])
+
+
+def demo_reference_point(setup: SkillSetup, task_factor: float, comp_factor: float) -> dict[str, Any]:
+    """The study's reference point from the demo's own stiffness rollout; raises if that rollout fails."""
+    demo_stiffness = np.tile(np.asarray(setup.spec.stiffness_Npm, dtype=np.float64), (1, setup.space.n_phases, 1))
+    task, comp = setup.evaluate(demo_stiffness)[0]
+    if not np.isfinite(task):
+        raise RuntimeError(f"the rollout at the demo's own stiffness {list(setup.spec.stiffness_Npm)} N/m failed, "
+                           "so it cannot set the reference point; give reference_point.value=[L_task_N,L_comp_kNpm]")
+    return {"L_task_N": float(task_factor * task), "L_comp_kNpm": float(comp_factor * max_compliance_loss(setup)),
+            "source": "demo_stiffness",
+            "demo_stiffness_Npm": [float(v) for v in setup.spec.stiffness_Npm],
+            "demo_stiffness_L_task_N": float(task), "demo_stiffness_L_comp_kNpm": float(comp),
+            "task_factor": float(task_factor), "comp_factor": float(comp_factor)}
+
+
+def prior_levels(min_Npm: float, max_Npm: float, n_levels: int) -> np.ndarray:
+    """Midpoints of ``n_levels`` equal bins of [min_Npm, max_Npm] (N/m)."""
+    return min_Npm + (np.arange(n_levels) + 0.5) * (max_Npm - min_Npm) / n_levels
+
+
+def run_prior(setup: SkillSetup, n_levels: int, out_dir: Path) -> dict[str, Any]:
+    """Validate the prior's schedules in the simulator; writes ``results.json`` to ``out_dir`` (a finished run)."""
+    levels = prior_levels(setup.space.min_Npm, setup.space.max_Npm, n_levels)
+    schedules = np.stack([np.full((setup.space.n_phases, 3), level) for level in levels])
+    start = time.perf_counter()
+    validated = setup.evaluate(schedules)
+    seconds = time.perf_counter() - start
+    results = {
+        "tuner": "prior",
+        "seed": int(setup.simulator.seed),
+        "levels_Npm": levels.tolist(),
+        "validation_seconds": seconds,
+        "solutions": [{"phase_stiffness_Npm": k.tolist(),
+                       "validated": {"L_task_N": v[0], "L_comp_kNpm": v[1], "failed": bool(np.isnan(v).any())}}
+                      for k, v in zip(schedules, validated)],
+    }
+    write_json(out_dir / "results.json", results)
+    return results
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Write atomically: a file that exists is complete (a study treats a run with results.json as finished)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=float))

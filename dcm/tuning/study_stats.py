@@ -1,0 +1,72 @@
+"""Statistics of a multi-seed tuning study: median and IQR of I_H per tuner, and paired tests against the DCM.
+
+Pure functions on plain numbers, so they are tested on hand-made results. A seed pairs the tuners: every
+tuner of seed s tuned the same skill with search seed s, so the DCM and a control are compared by the
+Wilcoxon signed-rank test on their per-seed differences, not by two independent samples.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+
+def summarize(values: Sequence[float]) -> dict[str, float | int]:
+    """n, median, quartiles, IQR, mean, min and max of the finite values (NaN where there are none)."""
+    finite = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=np.float64)
+    if not len(finite):
+        return {"n": 0, **{key: math.nan for key in ("median", "q1", "q3", "iqr", "mean", "min", "max")}}
+    q1, median, q3 = np.percentile(finite, [25, 50, 75])
+    return {"n": int(len(finite)), "median": float(median), "q1": float(q1), "q3": float(q3),
+            "iqr": float(q3 - q1), "mean": float(finite.mean()), "min": float(finite.min()), "max": float(finite.max())}
+
+
+def paired_test(first: Sequence[float], second: Sequence[float]) -> dict[str, float | int | None]:
+    """Two-sided Wilcoxon signed-rank test of ``first`` vs ``second``, paired by position (seed).
+
+    Pairs with a missing (NaN/None) value are dropped. ``p`` is 1 when every difference is zero and None with
+    fewer than two pairs (no test possible); ``wins`` counts the seeds where ``first`` is larger.
+    """
+    from scipy.stats import wilcoxon
+
+    if len(first) != len(second):
+        raise ValueError(f"paired test needs one value per seed on both sides, got {len(first)} and {len(second)}")
+    pairs = [(a, b) for a, b in zip(first, second)
+             if a is not None and b is not None and math.isfinite(a) and math.isfinite(b)]
+    diff = np.asarray([a - b for a, b in pairs], dtype=np.float64)
+    result: dict[str, float | int | None] = {
+        "n_pairs": len(pairs), "median_difference": float(np.median(diff)) if len(diff) else math.nan,
+        "wins": int((diff > 0).sum()), "losses": int((diff < 0).sum()), "ties": int((diff == 0).sum()),
+        "statistic": None, "p": None,
+    }
+    if len(pairs) < 2:
+        return result
+    if not np.any(diff):
+        result.update(statistic=0.0, p=1.0)
+        return result
+    test = wilcoxon(diff, alternative="two-sided", zero_method="wilcox")
+    result.update(statistic=float(test.statistic), p=float(test.pvalue))
+    return result
+
+
+def aggregate(results: Mapping[str, Sequence[float]], subject: str = "dcm", alpha: float = 0.05) -> dict:
+    """Per tuner: summary of I_H over seeds; per control: the paired test of ``subject`` against it.
+
+    ``results`` maps a tuner to its I_H per seed, every list in the same seed order (NaN for a missing run).
+    Returns ``{"tuners": {name: summary}, "tests": {control: test + "significant"}, "subject", "alpha"}``.
+    """
+    if subject not in results:
+        raise ValueError(f"aggregate: no results for the subject tuner {subject!r}; have {sorted(results)}")
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha={alpha} must be in (0, 1)")
+    tests = {}
+    for control, values in results.items():
+        if control == subject:
+            continue
+        test = paired_test(results[subject], values)
+        test["significant"] = test["p"] is not None and test["p"] < alpha
+        tests[control] = test
+    return {"subject": subject, "alpha": alpha,
+            "tuners": {name: summarize(values) for name, values in results.items()}, "tests": tests}

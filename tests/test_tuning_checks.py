@@ -1,0 +1,96 @@
+"""tune.py's settings are checked before any long work, each failure one line naming the setting."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from dcm.models.configuration import DataSpec
+from dcm.tuning.run import TuneConfigError, check_config, check_predictor, min_compliance_loss
+
+REPO = Path(__file__).resolve().parents[1]
+OK = ["ckpt=some.ckpt", "embodiment=tool"]
+
+
+def _cfg(*overrides: str):
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        return compose("tune", overrides=[*OK, *overrides])
+
+
+def test_the_default_settings_pass():
+    checked = check_config(_cfg())
+    assert checked.spec.horizon(20.0) > 0 and checked.reference is None
+    assert checked.space.min_Npm == 100.0 and checked.space.max_Npm == 1500.0
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["stiffness.max_Npm=1e+06"], "stiffness.max_Npm = 1e+06 is above the controller's limit 3000 N/m"),
+    (["stiffness.min_Npm=5"], "stiffness.min_Npm = 5 is below the controller's limit 10 N/m"),
+    (["stiffness.min_Npm=900", "stiffness.max_Npm=800"],
+     "stiffness.min_Npm = 900 must be below stiffness.max_Npm = 800"),
+    (["stiffness.rot_Nmprad=1000"], "stiffness.rot_Nmprad = 1000 is above the controller's limit 300 N·m/rad"),
+    (["stiffness.damping=heavy"], "stiffness.damping = 'heavy'"),
+    (["stiffness.phases=halves"], "stiffness.phases = 'halves'"),
+    (["robot_free.n_validate=0"], "robot_free.n_validate = 0 must be an integer >= 1"),
+    (["robot_free.n_trials=0"], "robot_free.n_trials = 0 must be an integer >= 1"),
+    (["robot_free.batch_size=0"], "robot_free.batch_size = 0 must be an integer >= 1"),
+    (["robot_free.n_samples=0"], "robot_free.n_samples = 0 must be an integer >= 1"),
+    (["robot_based.n_trials=-1"], "robot_based.n_trials = -1 must be an integer >= 0 (0 skips the robot-based search)"),
+    (["robot_based.n_trials=10"], "robot_based.n_trials = 10 is not above search.options.n_startup_trials = 10"),
+    (["robot_free.n_trials=8"], "robot_free.n_trials = 8 is not above search.options.n_startup_trials = 10"),
+    (["robot_free.sampler=euler"], "robot_free.sampler = 'euler'; expected null"),
+    (["robot_free.sampling_steps=0"], "robot_free.sampling_steps = 0 must be an integer >= 1 or null"),
+    (["reference_point=[0.0,2.0]"], "reference_point = [0, 2]: nothing can dominate it: L_task >= 0 N"),
+    (["reference_point=[3.0,0.1]"], "reference_point = [3, 0.1]: nothing can dominate it: L_comp >= 0.1732 kN/m"),
+    (["reference_point=[3.0]"], "reference_point = [3.0] must be null or [L_task_N, L_comp_kNpm]"),
+    (["embodiment=ur5"], "embodiment = 'ur5'; known:"),
+    (["torch_threads=0"], "torch_threads = 0 must be an integer >= 1 or null"),
+    (["overwrite=yes"], "overwrite = 'yes' must be true or false"),
+    (["control_hz=1000"], "control_hz = 1000 is outside [1, 500] Hz"),
+    (["search=random", "+search.options.n_startup_trials=3", "robot_based.n_trials=2"], "search=random with options"),
+])
+def test_each_bad_setting_is_one_line_naming_it(overrides, message):
+    with pytest.raises(ValueError) as err:
+        check_config(_cfg(*overrides))
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_zero_robot_trials_skip_rather_than_fail_and_a_reachable_reference_point_passes():
+    checked = check_config(_cfg("robot_based.n_trials=0", "reference_point=[3.0,0.5]"))
+    assert checked.reference.tolist() == [3.0, 0.5]
+    assert min_compliance_loss(checked.space) == pytest.approx(3**0.5 * 0.1)
+
+
+def test_a_missing_checkpoint_setting_is_named():
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        cfg = compose("tune", overrides=["embodiment=tool"])
+    with pytest.raises(TuneConfigError, match="ckpt is required"):
+        check_config(cfg)
+
+
+def test_a_predictor_of_other_channels_or_rate_is_refused():
+    cfg = _cfg()
+    other_channels = SimpleNamespace(data_spec=DataSpec(cond_channels=["x_demo.x_m"] * 24))
+    with pytest.raises(ValueError, match="condition channels .* differ from the model's"):
+        check_predictor(other_channels, cfg)
+    other_rate = SimpleNamespace(data_spec=DataSpec(control_hz=50.0))
+    with pytest.raises(ValueError, match="control rate 20.0 Hz, but the model was trained at 50.0 Hz"):
+        check_predictor(other_rate, cfg)
+    check_predictor(SimpleNamespace(data_spec=DataSpec()), cfg)  # the tuner's own layout passes
+
+
+def test_tune_py_reports_a_bad_setting_in_one_line(tmp_path: Path):
+    env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONWARNINGS="ignore", MUJOCO_GL="egl")
+    proc = subprocess.run([sys.executable, str(REPO / "tune.py"), "ckpt=none.ckpt", "robot_based.n_trials=-1",
+                           f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode != 0
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "error: robot_based.n_trials = -1 must be an integer >= 0 (0 skips the robot-based search)")
+    assert "Traceback" not in proc.stderr

@@ -1,0 +1,138 @@
+"""The multi-seed study: statistics on hand-made results, and a tiny study end to end that resumes."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import yaml
+from hydra import compose, initialize_config_dir
+
+import dcm.tuning.run as tuning_run
+from dcm.data.datamodule import DCMDataModule
+from dcm.models.dcm import DCM
+from dcm.models.references import main as references_main
+from dcm.tuning.study import run_study
+from dcm.tuning.study_config import StudyConfigError
+from dcm.tuning.study_controls import prior_levels
+from dcm.tuning.study_stats import aggregate, paired_test
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+# ------------------------------------------------------------------------------------------- statistics
+def test_aggregate_reports_medians_iqr_and_detects_a_clear_shift_only():
+    dcm = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]
+    shifted = [v - 0.5 - 0.01 * i for i, v in enumerate(dcm)]  # worse on every seed
+    null = [v + (0.1 * (i // 2 + 1) if i % 2 else -0.1 * (i // 2 + 1)) for i, v in enumerate(dcm)]  # +/- evenly
+    stats = aggregate({"dcm": dcm, "shifted": shifted, "null": null, "same": list(dcm)})
+
+    summary = stats["tuners"]["dcm"]
+    assert (summary["n"], summary["median"], summary["q1"], summary["q3"], summary["iqr"]) == (9, 5.0, 3.0, 7.0, 4.0)
+    shift = stats["tests"]["shifted"]
+    assert shift["p"] == pytest.approx(2 / 2**9) and shift["significant"]  # exact: all 9 differences positive
+    assert (shift["wins"], shift["losses"]) == (9, 0) and shift["median_difference"] > 0
+    assert stats["tests"]["null"]["p"] > 0.5 and not stats["tests"]["null"]["significant"]
+    assert stats["tests"]["same"]["p"] == 1.0 and stats["tests"]["same"]["ties"] == 9
+    assert set(stats["tests"]) == {"shifted", "null", "same"}  # the subject is not tested against itself
+
+
+def test_paired_test_drops_missing_seeds_and_refuses_unpaired_lists():
+    result = paired_test([1.0, 2.0, math.nan, 4.0], [0.5, 1.5, 3.0, None])
+    assert result["n_pairs"] == 2 and result["wins"] == 2
+    assert paired_test([1.0], [0.0])["p"] is None  # one pair: no test
+    with pytest.raises(ValueError, match="one value per seed"):
+        paired_test([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match="subject tuner 'dcm'"):
+        aggregate({"baseline": [1.0]})
+
+
+def test_prior_levels_are_bin_midpoints():
+    np.testing.assert_allclose(prior_levels(100.0, 1500.0, 5), [240.0, 520.0, 800.0, 1080.0, 1360.0])
+
+
+# ------------------------------------------------------------------------------------------- end to end
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small DCM (T = 5) trained for a few steps: enough to exercise the study, not to be accurate."""
+    dm = DCMDataModule(tiny_dataset_path, batch_size=4, expect_control_hz=20.0)
+    dm.setup("fit")
+    L.seed_everything(0)
+    model = DCM(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2}, diffusion_steps=5,
+                data_spec={"control_hz": dm.control_hz})
+    model.fit_normalizers(*dm.train_arrays())
+    trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=5, logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
+                        num_sanity_val_steps=0)
+    trainer.fit(model, datamodule=dm)
+    path = tmp_path_factory.mktemp("study_ckpt") / "dcm.ckpt"
+    trainer.save_checkpoint(path)
+    return path
+
+
+def _study_config(ckpt: Path, reference: Path, demo: Path, out_dir: Path, *extra: str):
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        return compose("study", overrides=[
+            f"ckpt={ckpt}", f"reference_json={reference}", f"demo_file={demo}", "embodiment=tool", "seeds=2",
+            f"out_dir={out_dir}", "robot_free.n_trials=8", "robot_free.batch_size=4", "robot_free.n_validate=2",
+            "robot_based.n_trials=[2,6]", "search.options.n_startup_trials=4", "prior.n_levels=3", *extra,
+        ])
+
+
+def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_checkpoint: Path, tiny_dataset_path: Path,
+                                                                       tmp_path: Path, monkeypatch):
+    spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
+    spec["duration_s"], spec["approach_s"] = 2.0, 0.4
+    demo = tmp_path / "short_wave.yaml"
+    demo.write_text(yaml.safe_dump(spec))
+    reference = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
+    out = tmp_path / "study"
+    cfg = _study_config(tiny_checkpoint, reference, demo, out)
+
+    calls: list[Path] = []
+    real_tune = tuning_run.tune
+
+    def counting_tune(run_cfg, run_dir):
+        calls.append(Path(run_dir))
+        return real_tune(run_cfg, run_dir)
+
+    monkeypatch.setattr(tuning_run, "tune", counting_tune)
+    report = run_study(cfg, out)
+
+    tuners = ["dcm", "reference", "prior", "robot_based_2", "robot_based_6"]
+    assert report["tuners"] == tuners and report["seeds"] == [0, 1]
+    assert len(calls) == 4  # dcm and reference, two seeds each (the prior needs no tune run)
+    assert all(len(report["hypervolume"][t]) == 2 for t in tuners)
+    assert all(v >= 0.0 for t in tuners for v in report["hypervolume"][t])
+    for seed in range(2):  # a prefix of one robot-based run: more trials never shrink the hypervolume
+        assert report["hypervolume"]["robot_based_2"][seed] <= report["hypervolume"]["robot_based_6"][seed]
+    ref = report["reference_point"]
+    assert ref["source"] == "demo_stiffness"
+    assert ref["L_task_N"] == pytest.approx(1.5 * ref["demo_stiffness_L_task_N"])
+    assert ref["L_comp_kNpm"] == pytest.approx(math.sqrt(3.0) * 1.5)  # every axis at max_Npm = 1500 N/m
+    dcm_results = json.loads((out / "runs/dcm/seed_001/results.json").read_text())
+    assert dcm_results["seed"] == 1 and dcm_results["robot_based"]["n_trials"] == 6
+    assert dcm_results["predictor"]["sampler"] == "ddim"  # the DCM's per-tuner overrides reached its runs
+    assert dcm_results["reference_point"]["L_task_N"] == pytest.approx(ref["L_task_N"])  # one point everywhere
+    assert json.loads((out / "runs/reference/seed_000/results.json").read_text())["robot_based"]["n_trials"] == 0
+    assert set(report["statistics"]["tests"]) == {"reference", "prior", "robot_based_2", "robot_based_6"}
+    for name in ("study.json", "study.md", "study.png", "cost.md"):
+        assert (out / name).stat().st_size > 0
+    assert "robot-based N=6" in (out / "study.md").read_text()
+    assert "virtual trials" in (out / "cost.md").read_text()
+
+    # Resuming: finished runs are kept; only the one whose results.json is gone runs again (from its logs).
+    (out / "runs/reference/seed_001/results.json").unlink()
+    calls.clear()
+    again = run_study(cfg, out)
+    assert calls == [out / "runs/reference/seed_001"]
+    assert again["hypervolume"] == report["hypervolume"]
+
+    # A folder started with other settings is refused before any work.
+    changed = _study_config(tiny_checkpoint, reference, demo, out, "robot_free.n_trials=10")
+    with pytest.raises(StudyConfigError, match=r"other settings: robot_free.n_trials: 8 -> 10"):
+        run_study(changed, out)
