@@ -22,7 +22,8 @@ class MOTPESearch:
         with warnings.catch_warnings():  # multivariate TPE is flagged experimental; behaviour is what we want
             warnings.simplefilter("ignore")
             sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=n_startup_trials,
-                                                 multivariate=multivariate, n_ei_candidates=n_ei_candidates)
+                                                 multivariate=multivariate, n_ei_candidates=n_ei_candidates,
+                                                 constant_liar=True)
         self.space = space
         self.study = optuna.create_study(directions=["minimize", "minimize"], sampler=sampler)
         self._distribution = optuna.distributions.FloatDistribution(space.min_Npm, space.max_Npm, log=space.log)

@@ -292,11 +292,21 @@ def _jsonable(value: Any) -> Any:
 
 
 # ----------------------------------------------------------------------------------------------- the run
+def record_skill(cfg: Any, checked: Any) -> tuple[Any, Any, Skill]:
+    """The new skill's simulator, its recorded demo and the ``Skill`` (phases, schedules) the tuners search."""
+    from dcm.sim.rollout import Simulator
+
+    simulator = Simulator(embodiment=cfg.embodiment, bowl=checked.spec.bowl, domain=checked.domain,
+                          control_hz=cfg.control_hz, seed=cfg.seed, damping=cfg.stiffness.damping)
+    demo = simulator.record_demo(checked.spec)
+    boundaries = phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, demo.force_demo)
+    return simulator, demo, Skill(demo.x_demo, demo.force_demo, boundaries, cfg.stiffness.rot_Nmprad)
+
+
 def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds."""
     from dcm.cli import resolve_device
     from dcm.models.predict import describe, load_model
-    from dcm.sim.rollout import Simulator
 
     checked = check_config(cfg)
     spec, domain, space, reference_cfg = checked.spec, checked.domain, checked.space, checked.reference
@@ -319,12 +329,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     if cfg.robot_based.n_trials > 0:
         resumable_log(robot_path, prints["robot_based"], overwrite)
 
-    simulator = Simulator(embodiment=cfg.embodiment, bowl=spec.bowl, domain=domain, control_hz=cfg.control_hz,
-                          seed=cfg.seed, damping=cfg.stiffness.damping)
-    demo = simulator.record_demo(spec)
-    stiffness_cfg = cfg.stiffness
-    boundaries = phase_boundaries(stiffness_cfg.phases, stiffness_cfg.n_phases, demo.force_demo)
-    skill = Skill(demo.x_demo, demo.force_demo, boundaries, stiffness_cfg.rot_Nmprad)
+    simulator, demo, skill = record_skill(cfg, checked)
 
     def search_loop(evaluate: Any, n_trials: int, batch_size: int, path: Path, fingerprint: dict, desc: str,
                     times: LoopTimes, log_notes: dict | None = None) -> TrialLog:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import compliance_loss, phase_boundaries
+from dcm.control import compliance_loss
 from dcm.data.atomic import atomic_path
 from dcm.tuning.objectives import SimulatorObjective, Skill
 
@@ -48,15 +48,10 @@ class SkillSetup:
 
 def setup_skill(tune_cfg: Any) -> SkillSetup:
     """Record the demo of ``tune_cfg`` in its simulator and build its skill (the same steps as ``tune``)."""
-    from dcm.sim.rollout import Simulator
-    from dcm.tuning.run import check_config
+    from dcm.tuning.run import check_config, record_skill
 
     checked = check_config(tune_cfg)
-    simulator = Simulator(embodiment=tune_cfg.embodiment, bowl=checked.spec.bowl, domain=checked.domain,
-                          control_hz=tune_cfg.control_hz, seed=tune_cfg.seed, damping=tune_cfg.stiffness.damping)
-    demo = simulator.record_demo(checked.spec)
-    boundaries = phase_boundaries(tune_cfg.stiffness.phases, tune_cfg.stiffness.n_phases, demo.force_demo)
-    skill = Skill(demo.x_demo, demo.force_demo, boundaries, tune_cfg.stiffness.rot_Nmprad)
+    simulator, demo, skill = record_skill(tune_cfg, checked)
     return SkillSetup(checked.spec, checked.space, simulator, demo, skill)
 
 
