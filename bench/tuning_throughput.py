@@ -19,8 +19,6 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
-
 
 def _load_average() -> str:
     try:

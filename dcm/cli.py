@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping
@@ -124,3 +125,17 @@ def config_diff(old: Mapping[str, Any], new: Mapping[str, Any], ignore: Iterable
 def _short(value: Any, width: int = 60) -> str:
     text = json.dumps(value, default=str) if isinstance(value, (list, dict)) else str(value)
     return text if len(text) <= width else text[: width - 3] + "..."
+
+
+def check_integer(value: Any, key: str, minimum: int, error: type[Exception] = ValueError, note: str = "") -> int:
+    """``value`` if it is an integer >= ``minimum`` (bools and floats refused), else ``error`` naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise error(f"{key} = {value!r} must be an integer >= {minimum}{note}")
+    return value
+
+
+def check_number(value: Any, key: str, error: type[Exception] = ValueError) -> float:
+    """``value`` as a float if it is a finite number, else ``error`` naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise error(f"{key} = {value!r} must be a finite number")
+    return float(value)

@@ -17,3 +17,26 @@ def tiny_dataset_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     path = tmp_path_factory.mktemp("data") / "tiny.h5"
     return ensure_dataset("tiny", path, overrides=["workers=1", "progress=false"])
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small DCM (T = 5) trained for a few steps: enough to exercise tuning, not to be accurate."""
+    import lightning as L
+
+    from dcm.data.datamodule import DCMDataModule
+    from dcm.models.dcm import DCM
+
+    dm = DCMDataModule(tiny_dataset_path, batch_size=4, expect_control_hz=20.0)
+    dm.setup("fit")
+    L.seed_everything(0)
+    model = DCM(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2}, diffusion_steps=5,
+                data_spec={"control_hz": dm.control_hz})
+    model.fit_normalizers(*dm.train_arrays())
+    trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=5, logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
+                        num_sanity_val_steps=0)
+    trainer.fit(model, datamodule=dm)
+    path = tmp_path_factory.mktemp("tiny_ckpt") / "dcm.ckpt"
+    trainer.save_checkpoint(path)
+    return path

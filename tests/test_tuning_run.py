@@ -6,39 +6,18 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import pytest
 import torch
 import yaml
 from hydra import compose, initialize_config_dir
 
-from dcm.data.datamodule import DCMDataModule
-from dcm.models.dcm import DCM
 from dcm.models.predict import load_model
 from dcm.tuning.compare import compare
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
 from dcm.tuning.run import TuneConfigError, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small DCM trained for a few steps: enough to exercise the pipeline, not to be accurate."""
-    dm = DCMDataModule(tiny_dataset_path, batch_size=4, expect_control_hz=20.0)
-    dm.setup("fit")
-    L.seed_everything(0)
-    model = DCM(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2}, diffusion_steps=5,
-                data_spec={"control_hz": dm.control_hz})
-    model.fit_normalizers(*dm.train_arrays())
-    trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=5, logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
-                        num_sanity_val_steps=0)
-    trainer.fit(model, datamodule=dm)
-    path = tmp_path_factory.mktemp("tune_ckpt") / "dcm.ckpt"
-    trainer.save_checkpoint(path)
-    return path
 
 
 def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int, *extra: str):

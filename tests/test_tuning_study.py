@@ -6,15 +6,12 @@ import json
 import math
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import pytest
 import yaml
 from hydra import compose, initialize_config_dir
 
 import dcm.tuning.run as tuning_run
-from dcm.data.datamodule import DCMDataModule
-from dcm.models.dcm import DCM
 from dcm.models.references import main as references_main
 from dcm.tuning.study import run_study
 from dcm.tuning.study_config import StudyConfigError
@@ -56,24 +53,6 @@ def test_prior_levels_are_bin_midpoints():
 
 
 # ------------------------------------------------------------------------------------------- end to end
-@pytest.fixture(scope="module")
-def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small DCM (T = 5) trained for a few steps: enough to exercise the study, not to be accurate."""
-    dm = DCMDataModule(tiny_dataset_path, batch_size=4, expect_control_hz=20.0)
-    dm.setup("fit")
-    L.seed_everything(0)
-    model = DCM(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2}, diffusion_steps=5,
-                data_spec={"control_hz": dm.control_hz})
-    model.fit_normalizers(*dm.train_arrays())
-    trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=5, logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
-                        num_sanity_val_steps=0)
-    trainer.fit(model, datamodule=dm)
-    path = tmp_path_factory.mktemp("study_ckpt") / "dcm.ckpt"
-    trainer.save_checkpoint(path)
-    return path
-
-
 def _study_config(ckpt: Path, reference: Path, demo: Path, out_dir: Path, *extra: str):
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
         return compose("study", overrides=[

@@ -29,7 +29,6 @@ or on SLURM with the submitit launcher plugin (``pip install hydra-submitit-laun
 from __future__ import annotations
 
 import json
-import math
 import multiprocessing as mp
 import os
 import queue
@@ -42,7 +41,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from dcm.cli import JSONFileError, config_diff, load_json
+from dcm.cli import JSONFileError, check_integer, check_number, config_diff, load_json
 from dcm.data.atomic import atomic_path
 from dcm.data.merge import MergeError, assemble, part_path, read_part, write_part
 from dcm.data.presets import DemoJob, PresetError, fingerprint, plan_demos
@@ -95,15 +94,11 @@ def check_embodiment(name: str) -> None:
 
 # ----------------------------------------------------------------------------------------------- checks
 def _integer(value: Any, key: str, minimum: int, note: str = "") -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise GenerationError(f"{key} = {value!r} must be an integer >= {minimum}{note}")
-    return value
+    return check_integer(value, key, minimum, GenerationError, note)
 
 
 def _number(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise GenerationError(f"{key} = {value!r} must be a finite number")
-    return float(value)
+    return check_number(value, key, GenerationError)
 
 
 def check_run_settings(cfg: Any) -> None:

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from dcm.cli import check_integer, check_number
 from dcm.control import phase_boundaries
 from dcm.search import SearchSpace, check_budget, make_search
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
@@ -61,15 +62,11 @@ def _plain(value: Any) -> Any:
 
 
 def _integer(value: Any, key: str, minimum: int, note: str = "") -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise TuneConfigError(f"{key} = {value!r} must be an integer >= {minimum}{note}")
-    return value
+    return check_integer(value, key, minimum, TuneConfigError, note)
 
 
 def _number(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise TuneConfigError(f"{key} = {value!r} must be a finite number")
-    return float(value)
+    return check_number(value, key, TuneConfigError)
 
 
 def _check_stiffness(stiffness: Any) -> SearchSpace:
