@@ -106,6 +106,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--sampler", default=None, help="DCM sampler override (ddpm | ddim)")
     parser.add_argument("--sampling-steps", type=int, default=None)
     parser.add_argument("--n-samples", type=int, default=None)
+    parser.add_argument("--reference", default=None,
+                        help="stiffness reference JSON for the ridge row (default: fitted on the dataset's train split)")
     parser.add_argument("--out", type=Path, default=None, help="write the Markdown table here")
     argv = sys.argv[1:] if argv is None else argv
     args = parser.parse_args(argv)
@@ -121,6 +123,9 @@ def main(argv: list[str] | None = None) -> str:
     overrides = {k: v for k, v in (("sampler", args.sampler), ("sampling_steps", args.sampling_steps),
                                    ("n_samples", args.n_samples)) if v is not None}
     tag = "_".join(f"{k}{v}" for k, v in overrides.items())
+    if args.reference:
+        overrides["reference"] = args.reference
+        tag = "_".join(filter(None, [tag, "ref-" + Path(args.reference).stem]))
     text = table(collect(runs, args.dataset, args.splits, tag, **overrides), args.splits)
     header = (f"Dataset `{args.dataset}`; median [range] over seeds; checkpoints selected on val/R_within. "
               f"Command: `python -m dcm.model_table {' '.join(argv)}`")
