@@ -46,7 +46,7 @@ from dcm.data.atomic import atomic_path
 from dcm.data.merge import MergeError, assemble, part_path, read_part, write_part
 from dcm.data.presets import DemoJob, PresetError, fingerprint, plan_demos
 from dcm.data.schema import DatasetError, read_root_attrs
-from dcm.search import SearchSpace, StiffnessSearch, check_budget, make_search
+from dcm.search import StiffnessSearch, check_budget, make_search, space_from_settings
 from dcm.sim.domain import DomainSpec
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
@@ -134,29 +134,10 @@ def check_run_settings(cfg: Any) -> None:
 def check_stiffness_settings(settings: dict[str, Any]) -> StiffnessSearch:
     """The stiffness search space against the controller's limits, and the search strategy's options;
     returns a strategy built from them (for :func:`check_budget` once the trial counts are known)."""
-    from dcm.control import DAMPING_MODES, StiffnessLimits
-
-    stiffness, limits = settings["stiffness"], StiffnessLimits()
-    n_phases = _integer(stiffness["n_phases"], "stiffness.n_phases", 1)
-    low, high = _number(stiffness["min_Npm"], "stiffness.min_Npm"), _number(stiffness["max_Npm"], "stiffness.max_Npm")
-    rot = _number(stiffness["rot_Nmprad"], "stiffness.rot_Nmprad")
-    for key, value, lo, hi, unit in (("min_Npm", low, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
-                                     ("max_Npm", high, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
-                                     ("rot_Nmprad", rot, limits.rot_min_Nmprad, limits.rot_max_Nmprad, "N·m/rad")):
-        if value > hi:
-            raise GenerationError(f"stiffness.{key} = {value:g} is above the controller's limit {hi:g} {unit}")
-        if value < lo:
-            raise GenerationError(f"stiffness.{key} = {value:g} is below the controller's limit {lo:g} {unit}")
-    if low >= high:
-        raise GenerationError(f"stiffness.min_Npm = {low:g} must be below stiffness.max_Npm = {high:g}")
-    if stiffness["damping"] not in DAMPING_MODES:
-        raise GenerationError(f"stiffness.damping = {stiffness['damping']!r}; expected one of {DAMPING_MODES}")
-    if not isinstance(stiffness["log"], bool):
-        raise GenerationError(f"stiffness.log = {stiffness['log']!r} must be true or false")
+    space = space_from_settings(settings["stiffness"], GenerationError)
     search = settings["search"]
     try:  # builds the strategy once, so unknown names and options fail here rather than in every worker
-        return make_search(search["name"], SearchSpace(n_phases=n_phases, min_Npm=low, max_Npm=high,
-                                                       log=stiffness["log"]), 0, **search["options"])
+        return make_search(search["name"], space, 0, **search["options"])
     except (TypeError, ValueError) as err:
         raise GenerationError(f"search={search['name']} with options {search['options']}: {err}") from None
 
@@ -329,8 +310,7 @@ class DemoRunner:
             boundaries = phase_boundaries(str(stiffness_cfg["phases"]), n_phases, demo.force_demo)
         except ValueError as err:
             raise GenerationError(f"stiffness.phases / n_phases: {err}") from err
-        space = SearchSpace(n_phases=n_phases, min_Npm=float(stiffness_cfg["min_Npm"]),
-                            max_Npm=float(stiffness_cfg["max_Npm"]), log=bool(stiffness_cfg["log"]))
+        space = space_from_settings(stiffness_cfg, GenerationError)
         search = make_search(self.settings["search"]["name"], space, job.seed, **self.settings["search"]["options"])
 
         records: dict[str, list[Any]] = {k: [] for k in ("x_attr", "K", "x_obs", "F_obs", "contact", "L_task",

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from dcm.search.space import SearchSpace, StiffnessSearch
+from dcm.search.space import SearchSpace, StiffnessSearch, space_from_settings
 
 STRATEGIES = ("motpe", "random", "botorch")
 
@@ -63,4 +63,4 @@ def __getattr__(name: str) -> Any:  # the classes, without importing optuna/boto
 
 
 __all__ = ["STRATEGIES", "BoTorchSearch", "MOTPESearch", "RandomSearch", "SearchBudgetError", "SearchSpace",
-           "StiffnessSearch", "check_budget", "make_search"]
+           "StiffnessSearch", "check_budget", "make_search", "space_from_settings"]

@@ -6,8 +6,9 @@ One home for both dataset generation (:mod:`dcm.data.generate`, the paper's robo
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -61,6 +62,35 @@ class SearchSpace:
             return float(np.log(self.min_Npm)), float(np.log(self.max_Npm)), np.log(values)
         return self.min_Npm, self.max_Npm, values
 
+
+
+def space_from_settings(stiffness: Mapping[str, Any], error: type[Exception] = ValueError) -> SearchSpace:
+    """The search space of a ``conf/stiffness`` mapping, checked against the controller's limits.
+
+    Generation and tuning both call this before any work, so ``stiffness.max_Npm=1e6`` fails at once with
+    ``stiffness.max_Npm = 1e+06 is above the controller's limit 3000 N/m`` (raised as ``error``)."""
+    from dcm.cli import check_integer, check_number
+    from dcm.control import DAMPING_MODES, StiffnessLimits
+
+    limits = StiffnessLimits()
+    n_phases = check_integer(stiffness["n_phases"], "stiffness.n_phases", 1, error)
+    low = check_number(stiffness["min_Npm"], "stiffness.min_Npm", error)
+    high = check_number(stiffness["max_Npm"], "stiffness.max_Npm", error)
+    rot = check_number(stiffness["rot_Nmprad"], "stiffness.rot_Nmprad", error)
+    for key, value, lo, hi, unit in (("min_Npm", low, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
+                                     ("max_Npm", high, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
+                                     ("rot_Nmprad", rot, limits.rot_min_Nmprad, limits.rot_max_Nmprad, "N·m/rad")):
+        if value > hi:
+            raise error(f"stiffness.{key} = {value:g} is above the controller's limit {hi:g} {unit}")
+        if value < lo:
+            raise error(f"stiffness.{key} = {value:g} is below the controller's limit {lo:g} {unit}")
+    if low >= high:
+        raise error(f"stiffness.min_Npm = {low:g} must be below stiffness.max_Npm = {high:g}")
+    if stiffness["damping"] not in DAMPING_MODES:
+        raise error(f"stiffness.damping = {stiffness['damping']!r}; expected one of {', '.join(DAMPING_MODES)}")
+    if not isinstance(stiffness["log"], bool):
+        raise error(f"stiffness.log = {stiffness['log']!r} must be true or false")
+    return SearchSpace(n_phases=n_phases, min_Npm=low, max_Npm=high, log=stiffness["log"])
 
 class StiffnessSearch(Protocol):
     """ask() proposes (P, 3) stiffness in N/m; tell() reports (L_task, L_comp), or None for a failed trial.

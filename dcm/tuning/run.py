@@ -28,7 +28,7 @@ import numpy as np
 
 from dcm.cli import check_integer, check_number
 from dcm.control import phase_boundaries
-from dcm.search import SearchSpace, check_budget, make_search
+from dcm.search import SearchSpace, check_budget, make_search, space_from_settings
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
 from dcm.tuning.pareto import hypervolume, pareto_mask, reference_point
@@ -67,29 +67,6 @@ def _integer(value: Any, key: str, minimum: int, note: str = "") -> int:
 
 def _number(value: Any, key: str) -> float:
     return check_number(value, key, TuneConfigError)
-
-
-def _check_stiffness(stiffness: Any) -> SearchSpace:
-    from dcm.control import DAMPING_MODES, StiffnessLimits
-
-    limits = StiffnessLimits()
-    n_phases = _integer(stiffness.n_phases, "stiffness.n_phases", 1)
-    low, high = _number(stiffness.min_Npm, "stiffness.min_Npm"), _number(stiffness.max_Npm, "stiffness.max_Npm")
-    rot = _number(stiffness.rot_Nmprad, "stiffness.rot_Nmprad")
-    for key, value, lo, hi, unit in (("min_Npm", low, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
-                                     ("max_Npm", high, limits.trans_min_Npm, limits.trans_max_Npm, "N/m"),
-                                     ("rot_Nmprad", rot, limits.rot_min_Nmprad, limits.rot_max_Nmprad, "N·m/rad")):
-        if value > hi:
-            raise TuneConfigError(f"stiffness.{key} = {value:g} is above the controller's limit {hi:g} {unit}")
-        if value < lo:
-            raise TuneConfigError(f"stiffness.{key} = {value:g} is below the controller's limit {lo:g} {unit}")
-    if low >= high:
-        raise TuneConfigError(f"stiffness.min_Npm = {low:g} must be below stiffness.max_Npm = {high:g}")
-    if stiffness.damping not in DAMPING_MODES:
-        raise TuneConfigError(f"stiffness.damping = {stiffness.damping!r}; expected one of {', '.join(DAMPING_MODES)}")
-    if not isinstance(stiffness.log, bool):
-        raise TuneConfigError(f"stiffness.log = {stiffness.log!r} must be true or false")
-    return SearchSpace(n_phases, low, high, stiffness.log)
 
 
 def _check_search(cfg: Any, space: SearchSpace) -> None:
@@ -184,7 +161,7 @@ def check_config(cfg: Any) -> CheckedConfig:
         _integer(cfg.torch_threads, "torch_threads", 1, " or null")
     if not isinstance(cfg.get("overwrite", False), bool):
         raise TuneConfigError(f"overwrite = {cfg.overwrite!r} must be true or false")
-    space = _check_stiffness(cfg.stiffness)
+    space = space_from_settings(cfg.stiffness, TuneConfigError)
     _check_search(cfg, space)
     reference = _check_reference_point(cfg.get("reference_point"), space)
     domain = DomainSpec.resolve(_plain(cfg.domain))
