@@ -5,7 +5,8 @@ The controller is the one franka_ros' ``cartesian_impedance_example_controller``
 
     tau = J^T (K (x_attr - x) - D xdot) + gravity + Coriolis + (I - J^T J^T+) (k_ns (q_ns - q) - d_ns qdot)
 
-with ``K`` the diagonal Cartesian stiffness (N/m, N·m/rad) and ``D = 2 sqrt(K)``. How it is executed, and why:
+with ``K`` the diagonal Cartesian stiffness (N/m, N·m/rad) and ``D`` the damping the ``Simulator`` passes
+(``dcm.control.damping_from_stiffness``; ``2 sqrt(K)`` if none). How it is executed, and why:
 
 * The spring-damper ``J^T (K e - D xdot)`` is six MuJoCo position actuators with *site transmission* on the
   tool centre point, referenced to two mocap "attractor" sites (one world-aligned for the translations, one

@@ -5,8 +5,8 @@ a sphere tip (a flat pad catches on heightfield facets). Orientation is fixed (t
 down), so the rotational pose channels are 0 and rotational stiffness has no effect.
 
 The impedance law runs at every physics step inside MuJoCo: each slide joint has a position-type actuator
-with gain ``kp = K`` and bias ``-kp q - kv qdot`` (``kv = D = 2 sqrt(K)``, unit-mass critical damping, which
-matches the 1 kg tool) whose control input is the attractor. Python rewrites gains and attractor once per
+with gain ``kp = K`` and bias ``-kp q - kv qdot`` (``kv = D`` from the ``Simulator``; critical damping for
+the 1 kg tool is the paper's ``2 sqrt(K)``) whose control input is the attractor. Python rewrites gains and attractor once per
 control period, so the per-substep Python work is one ``mj_step`` and one vector add (for the averaged
 wrench). The ``implicitfast`` integrator treats the actuator damping implicitly, which keeps stiff
 settings stable at 2 ms.
