@@ -125,10 +125,10 @@ def plot(skills: dict[str, dict[str, Any]], path: Path) -> None:
                 title="L_task against constant stiffness")
     axes[0].legend()
     names = list(ADDITIVITY_SCHEDULES)
+    jitter = np.random.default_rng(0).uniform(-0.15, 0.15, size=len(skills))  # spread the skills' dots
     for i, name in enumerate(names):
-        for s in skills.values():
-            axes[1].scatter(i + np.random.default_rng(len(s["sweep_L_task"])).uniform(-0.15, 0.15),
-                            s["additivity"][name], color=colours[s["family"]], s=14)
+        for j, s in enumerate(skills.values()):
+            axes[1].scatter(i + jitter[j], s["additivity"][name], color=colours[s["family"]], s=14)
     axes[1].axhline(1.0, c="k", lw=0.8, ls="--")
     axes[1].set(xticks=range(len(names)), xticklabels=names, ylabel="phase additivity",
                 title="phase additivity (1 = no artefact)")
