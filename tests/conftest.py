@@ -19,24 +19,30 @@ def tiny_dataset_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return ensure_dataset("tiny", path, overrides=["workers=1", "progress=false"])
 
 
-@pytest.fixture(scope="session")
-def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small DCM (T = 5) trained for a few steps: enough to exercise tuning, not to be accurate."""
+def train_tiny(cls: type, dataset_path: Path, out_path: Path, steps: int, **config) -> Path:
+    """Train a small ``cls`` (DCM or Baseline) for ``steps`` on a tiny dataset and save its checkpoint."""
     import lightning as L
 
     from dcm.data.datamodule import DCMDataModule
-    from dcm.models.dcm import DCM
 
-    dm = DCMDataModule(tiny_dataset_path, batch_size=4, expect_control_hz=20.0)
+    dm = DCMDataModule(dataset_path, batch_size=4, expect_control_hz=20.0)
     dm.setup("fit")
     L.seed_everything(0)
-    model = DCM(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2}, diffusion_steps=5,
-                data_spec={"control_hz": dm.control_hz})
+    model = cls(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2},
+                data_spec={"control_hz": dm.control_hz}, **config)
     model.fit_normalizers(*dm.train_arrays())
-    trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=5, logger=False, enable_checkpointing=False,
+    trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=steps, logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
                         num_sanity_val_steps=0)
     trainer.fit(model, datamodule=dm)
-    path = tmp_path_factory.mktemp("tiny_ckpt") / "dcm.ckpt"
-    trainer.save_checkpoint(path)
-    return path
+    trainer.save_checkpoint(out_path)
+    return out_path
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small DCM (T = 5) trained for a few steps: enough to exercise tuning, not to be accurate."""
+    from dcm.models.dcm import DCM
+
+    return train_tiny(DCM, tiny_dataset_path, tmp_path_factory.mktemp("tiny_ckpt") / "dcm.ckpt", 5,
+                      diffusion_steps=5)

@@ -6,12 +6,10 @@ import json
 import math
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import pytest
 
 from dcm.control import equal_time_phases, filter_schedule, schedule_from_phases
-from dcm.data.datamodule import DCMDataModule
 from dcm.data.schema import load_dataset
 from dcm.evaluate import evaluate
 from dcm.evaluate import main as evaluate_main
@@ -22,6 +20,7 @@ from dcm.models.predict import load_model, predict_task_loss
 from dcm.models.references import CopyDemo, ReferenceError, StiffnessRegression, load_reference
 from dcm.models.references import main as references_main
 from dcm.models.stiffness_features import StiffnessScheduleError, feature_names, features, phase_values
+from conftest import train_tiny
 from test_models_synthetic import write_synthetic_dataset
 
 
@@ -118,19 +117,7 @@ def test_load_model_names_what_it_cannot_load(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def baseline_ckpt(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny Baseline trained 3 steps: enough for the evaluation plumbing."""
-    dm = DCMDataModule(tiny_dataset_path, batch_size=4, expect_control_hz=20.0)
-    dm.setup("fit")
-    L.seed_everything(0)
-    model = Baseline(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2},
-                     data_spec={"control_hz": dm.control_hz})
-    model.fit_normalizers(*dm.train_arrays())
-    trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=3, logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
-                        num_sanity_val_steps=0)
-    trainer.fit(model, datamodule=dm)
-    path = tmp_path_factory.mktemp("ref_ckpt") / "baseline.ckpt"
-    trainer.save_checkpoint(path)
-    return path
+    return train_tiny(Baseline, tiny_dataset_path, tmp_path_factory.mktemp("ref_ckpt") / "baseline.ckpt", 3)
 
 
 RANKING = {"R_within", "R_within_spearman", "R_within_n_skills", "R_pooled", "R", "L_task_mae_N"}
