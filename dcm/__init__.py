@@ -1,3 +1,3 @@
 """dcm: a Diffusion Contact Model for learning variable impedance control."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"

@@ -21,21 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from dcm.models.export import run_checkpoint
+
 COLUMNS = (("force_rmse_N", "force RMSE [N]"), ("force_rmse_ratio_copy", "÷ copy-F_demo"),
            ("R_within", "R within skill"), ("R_within_spearman", "Spearman within"), ("R_pooled", "R pooled"))
-
-
-def run_checkpoint(run_dir: Path) -> Path:
-    """The checkpoint a run selected (on its monitor), or its last one."""
-    summary = run_dir / "summary.json"
-    if summary.is_file():
-        best = json.loads(summary.read_text()).get("best_checkpoint")
-        if best and Path(best).is_file():
-            return Path(best)
-    last = run_dir / "checkpoints" / "last.ckpt"
-    if not last.is_file():
-        raise FileNotFoundError(f"{run_dir}: no summary.json best_checkpoint and no checkpoints/last.ckpt")
-    return last
 
 
 def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overrides: Any) -> dict[str, Any]:

@@ -29,6 +29,14 @@ class CheckpointKindError(ModelInputError):
     """A checkpoint holds another model class than the one asked to load it."""
 
 
+class CheckpointIncompatibleError(ModelInputError):
+    """A checkpoint's parameter names do not fit this code (written by another dcm version)."""
+
+
+class CheckpointVersionWarning(UserWarning):
+    """A checkpoint was written by another dcm version: it loads, but its behaviour may differ."""
+
+
 @dataclass
 class DataSpec:
     """What the model was trained on; a dataset must match it to be evaluated or fine-tuned on."""

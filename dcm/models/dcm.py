@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -20,9 +21,12 @@ import numpy as np
 import torch
 from torch import nn
 
+from dcm import __version__
 from dcm.models import diffusion
 from dcm.models.configuration import (
+    CheckpointIncompatibleError,
     CheckpointKindError,
+    CheckpointVersionWarning,
     DataSpec,
     DCMConfig,
     ForceModelConfig,
@@ -36,10 +40,11 @@ COND_DIM = 24
 OUT_DIM = 6
 _F_DEMO = cond_slice("F_demo")
 KIND_KEY = "dcm_model_kind"  # checkpoint key naming the class that wrote it
+VERSION_KEY = "dcm_version"  # checkpoint key naming the code version that wrote it
 
 
-def _checkpoint_kind(path: str | Path) -> tuple[str | None, dict[str, Any]]:
-    """The model kind and hyper-parameters stored in a checkpoint, without building the model."""
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """A checkpoint's raw dict, checked to be a Lightning checkpoint; one-line errors name ``path``."""
     path = Path(path)
     if not path.is_file():
         raise ModelInputError(f"checkpoint {path} does not exist")
@@ -49,7 +54,32 @@ def _checkpoint_kind(path: str | Path) -> tuple[str | None, dict[str, Any]]:
         raise ModelInputError(f"checkpoint {path} is not readable: {err}") from err
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise ModelInputError(f"checkpoint {path} is not a Lightning checkpoint (no state_dict)")
+    return ckpt
+
+
+def _checkpoint_kind(path: str | Path) -> tuple[str | None, dict[str, Any]]:
+    """The model kind and hyper-parameters stored in a checkpoint, without building the model."""
+    ckpt = read_checkpoint(path)
     return ckpt.get(KIND_KEY), dict(ckpt.get("hyper_parameters") or {})
+
+
+def check_code_version(path: str | Path, written_by: str | None) -> None:
+    """Warn when a checkpoint comes from another dcm version: it loads, but its numbers may differ."""
+    if written_by != __version__:
+        warnings.warn(f"checkpoint {path} was written by dcm {written_by or '(unknown, before 0.2.0)'}; "
+                      f"this is dcm {__version__}", CheckpointVersionWarning, stacklevel=3)
+
+
+def _incompatible(path: str | Path, written_by: str | None, err: RuntimeError) -> CheckpointIncompatibleError:
+    """A clear error for parameter names that changed between code versions."""
+    text = str(err)
+    labels = {"Missing key(s)": "missing", "Unexpected key(s)": "unexpected"}
+    names = [f"{labels[label]} {part.split(':', 1)[1].strip().rstrip('.')}" for part in text.split("\n\t")
+             for label in labels if part.startswith(label)]
+    detail = "; ".join(names)[:300] or " ".join(text.split())[:300]
+    return CheckpointIncompatibleError(
+        f"checkpoint {path} (dcm {written_by or 'unknown'}) does not fit this code (dcm {__version__}): "
+        f"parameter names changed: {detail}. Retrain, or load it with the dcm version that wrote it")
 
 
 class ForceModel(L.LightningModule):
@@ -74,16 +104,25 @@ class ForceModel(L.LightningModule):
     # ------------------------------------------------------------------ checkpoint identity
     @classmethod
     def load_from_checkpoint(cls, checkpoint_path: str | Path, map_location: Any = None, **kwargs: Any):  # type: ignore[override]
-        """Load a checkpoint written by this class; another model's checkpoint raises CheckpointKindError."""
-        kind, _ = _checkpoint_kind(checkpoint_path)
+        """Load a checkpoint written by this class. Another model's checkpoint, or one whose parameter names
+        no longer fit the code, raises a ModelInputError; one from another dcm version warns, naming both."""
+        ckpt = read_checkpoint(checkpoint_path)
+        kind, written_by = ckpt.get(KIND_KEY), ckpt.get(VERSION_KEY)
         if kind != cls.model_kind:
             raise CheckpointKindError(
                 f"checkpoint {checkpoint_path} holds a {kind!r} model, not {cls.model_kind!r}; "
                 "load it with its own class or with dcm.models.predict.load_model, which picks the class")
-        return super().load_from_checkpoint(checkpoint_path, map_location=map_location or "cpu", **kwargs)
+        check_code_version(checkpoint_path, written_by)
+        try:
+            return super().load_from_checkpoint(checkpoint_path, map_location=map_location or "cpu", **kwargs)
+        except RuntimeError as err:
+            if "state_dict" not in str(err):
+                raise
+            raise _incompatible(checkpoint_path, written_by, err) from None
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint[KIND_KEY] = self.model_kind
+        checkpoint[VERSION_KEY] = __version__
 
     # ------------------------------------------------------------------ normalisation
     def fit_normalizers(self, cond: Any, target: Any) -> None:

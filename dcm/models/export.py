@@ -1,0 +1,128 @@
+"""Slim, self-describing checkpoints to ship: weights, normalisers and hyper-parameters plus a model card.
+
+    python -m dcm.models.export outputs/train/<run> models/dcm_sim.ckpt
+
+A training checkpoint also carries the optimiser state, loops and callbacks (3x the weights); a user who
+predicts, tunes or fine-tunes needs none of it. The export loads the run's selected checkpoint with this
+code (strict parameter names), so the stamped ``dcm_version`` is one that is known to load it, and stores a
+card (``dcm_card``): the dataset and its plan fingerprint, the training overrides and config, and the
+run's metrics. :func:`checkpoint_card` reads it back without building the model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from dcm import __version__
+from dcm.models.configuration import CheckpointVersionWarning, ModelInputError
+from dcm.models.dcm import KIND_KEY, VERSION_KEY, read_checkpoint
+
+CARD_KEY = "dcm_card"
+KEEP_KEYS = ("pytorch-lightning_version", "state_dict", "hparams_name", "hyper_parameters", KIND_KEY)
+
+
+def _dataset_identity(path: str | None) -> dict[str, Any]:
+    """Name, plan fingerprint and size of the dataset a run trained on (what regenerates it)."""
+    if not path or not Path(path).is_file():
+        return {"path": path, "available": False}
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        attrs = {key: f.attrs[key] for key in ("dataset", "plan_fingerprint", "embodiment", "seed",
+                                               "n_trajectories_total", "dcm_version") if key in f.attrs}
+    return {"path": Path(path).name, **{k: v.item() if hasattr(v, "item") else str(v) for k, v in attrs.items()}}
+
+
+def run_checkpoint(run_dir: Path) -> Path:
+    """The checkpoint a train.py run selected (on its monitor), or its last one."""
+    summary = run_dir / "summary.json"
+    if summary.is_file():
+        best = json.loads(summary.read_text()).get("best_checkpoint")
+        if best and Path(best).is_file():
+            return Path(best)
+    last = run_dir / "checkpoints" / "last.ckpt"
+    if not last.is_file():
+        raise FileNotFoundError(f"{run_dir}: no summary.json best_checkpoint and no checkpoints/last.ckpt")
+    return last
+
+
+def run_card(run_dir: Path) -> dict[str, Any]:
+    """The card of a train.py run: config, overrides, dataset identity and the metrics it logged."""
+    summary = json.loads((run_dir / "summary.json").read_text())
+    overrides_file = run_dir / ".hydra" / "overrides.yaml"
+    overrides = [line[2:].strip() for line in overrides_file.read_text().splitlines() if line.startswith("- ")] \
+        if overrides_file.is_file() else []
+    evaluations = {path.stem: json.loads(path.read_text()) for path in sorted(run_dir.glob("eval_*.json"))}
+    return {
+        "model": summary.get("model"),
+        "stage": summary.get("stage"),
+        "seed": summary.get("seed"),
+        "epochs": summary.get("epochs"),
+        "global_step": summary.get("global_step"),
+        "selected_on": {"monitor": summary.get("monitor"), "value": summary.get("best_score"),
+                        "checkpoint": Path(str(summary.get("best_checkpoint"))).name},
+        "train_command": "python train.py " + " ".join(o for o in overrides if not o.startswith("hydra.")),
+        "dataset": _dataset_identity(summary.get("dataset")),
+        "n_train_used": summary.get("n_train_used"),
+        "test_metrics": summary.get("test"),
+        "evaluations": evaluations,
+        "config": (run_dir / "config.yaml").read_text() if (run_dir / "config.yaml").is_file() else None,
+    }
+
+
+def export_checkpoint(source: Path, out: Path, card: dict[str, Any] | None = None) -> Path:
+    """Write the slim checkpoint of ``source`` (a .ckpt, or a run directory: its selected checkpoint)."""
+    from dcm.models.predict import load_model
+
+    if source.is_dir():
+        card = {**run_card(source), **(card or {})}
+        source = run_checkpoint(source)
+    raw = read_checkpoint(source)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CheckpointVersionWarning)  # recorded below instead
+        load_model(source)  # strict: refuses parameter names this code does not know
+    slim = {key: raw[key] for key in KEEP_KEYS if key in raw}
+    slim[VERSION_KEY] = __version__
+    slim[CARD_KEY] = {**(card or {}), "exported_from": {"checkpoint": source.name,
+                                                        "written_by_dcm": raw.get(VERSION_KEY)}}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.save(slim, tmp)
+    tmp.replace(out)
+    return out
+
+
+def checkpoint_card(path: str | Path) -> dict[str, Any]:
+    """The card stored in an exported checkpoint ({} for a training checkpoint), with its kind and version."""
+    raw = read_checkpoint(path)
+    return {"kind": raw.get(KIND_KEY), "dcm_version": raw.get(VERSION_KEY), **(raw.get(CARD_KEY) or {})}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("source", type=Path, help="a train.py run directory (its selected checkpoint) or a .ckpt")
+    parser.add_argument("out", type=Path, help="the slim checkpoint to write")
+    parser.add_argument("--name", help="a short name stored in the card (e.g. dcm_sim)")
+    args = parser.parse_args(argv)
+    try:
+        out = export_checkpoint(args.source, args.out, {"name": args.name or args.out.stem})
+    except (ModelInputError, OSError) as err:
+        print(f"error: {' '.join(str(err).split())}", file=sys.stderr)
+        return 1
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = ["CARD_KEY", "checkpoint_card", "export_checkpoint", "run_card", "run_checkpoint"]
