@@ -12,10 +12,15 @@ $(BIN)/dcm-installed: pyproject.toml
 	$(BIN)/pip install -q -e ".[dev]"
 	touch $@
 
-.PHONY: install demo test bench
+.PHONY: install demo rollout test bench
 install: $(BIN)/dcm-installed
 
+# The main job: the shipped DCM tunes a path it never saw, robot-free, and the simulator validates the result.
 demo: install
+	$(BIN)/python tune.py --config-name quickstart
+
+# One simulated rollout of the Panda wiping a bowl, as a picture.
+rollout: install
 	$(BIN)/python -m dcm.sim.render --out docs/demo_rollout.png
 
 test: install

@@ -1,7 +1,7 @@
 """Robot-free stiffness tuning of a new skill: `python tune.py ckpt=<model.ckpt> [demo=wavelike] [k=v ...]`.
 
-See conf/tune.yaml for every option. Writes results.json, pareto.png and solution_forces.png to the run
-directory; a killed run resumes with the same command plus `hydra.run.dir=<that run directory>`.
+See conf/tune.yaml for every option. Writes results.json, overview.png, pareto.png and solution_forces.png to
+the run directory; a killed run resumes with the same command plus `hydra.run.dir=<that run directory>`.
 A setting that cannot work stops the run with one line on stderr (`error: ...`) and exit code 1.
 """
 
@@ -26,7 +26,10 @@ def main(cfg: DictConfig) -> None:
     if robot["hypervolume"] is not None:
         print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s, "
               f"hypervolume {robot['hypervolume']:.4g}")
-    print(f"results: {Path(cfg.out_dir) / 'results.json'}")
+    out = Path(cfg.out_dir)
+    print(f"results: {out / 'results.json'}")
+    print("figures: " + ", ".join(str(out / name) for name in ("overview.png", "pareto.png", "solution_forces.png")
+                                  if (out / name).is_file()))
 
 
 if __name__ == "__main__":

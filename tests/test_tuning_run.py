@@ -62,7 +62,7 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
         assert solution["validated"]["L_comp_kNpm"] == pytest.approx(solution["predicted"]["L_comp_kNpm"])
     assert first["robot_based"]["n_trials"] == 5
     assert first["robot_free"]["hypervolume"] >= 0.0 and first["robot_based"]["hypervolume"] >= 0.0
-    for name in ("results.json", "pareto.png", "solution_forces.png"):
+    for name in ("results.json", "overview.png", "pareto.png", "solution_forces.png"):
         assert (out_dir / name).stat().st_size > 0
 
     # Extending the run replays the logged virtual trials and only evaluates the new ones.
@@ -161,3 +161,11 @@ def test_tune_refuses_a_checkpoint_of_another_control_rate(tiny_checkpoint: Path
     cfg.control_hz = 50.0
     with pytest.raises(ValueError, match="50.0 Hz"):
         tune(cfg, tmp_path)
+
+
+def test_the_demo_config_tunes_a_curve_with_the_shipped_dcm():
+    """`make demo` runs tune.py --config-name quickstart: the shipped DCM on a path family it never trained on."""
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        cfg = compose("quickstart")
+    assert cfg.ckpt == "models/dcm_sim.ckpt" and cfg.demo.family == "curve"
+    assert cfg.robot_free.n_trials == 1000 and cfg.robot_based.n_trials > 0

@@ -59,7 +59,9 @@ def run_card(run_dir: Path) -> dict[str, Any]:
     overrides_file = run_dir / ".hydra" / "overrides.yaml"
     overrides = [line[2:].strip() for line in overrides_file.read_text().splitlines() if line.startswith("- ")] \
         if overrides_file.is_file() else []
-    evaluations = {path.stem: json.loads(path.read_text()) for path in sorted(run_dir.glob("eval_*.json"))}
+    selected = str(run_checkpoint(run_dir).resolve())
+    evaluations = {path.stem: data for path in sorted(run_dir.glob("eval_*.json"))
+                   if (data := json.loads(path.read_text())).get("ckpt") == selected}  # of these very weights
     return {
         "model": summary.get("model"),
         "stage": summary.get("stage"),

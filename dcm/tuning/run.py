@@ -32,7 +32,7 @@ from dcm.search import SearchSpace, check_budget, make_search, space_from_settin
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
 from dcm.tuning.pareto import hypervolume, pareto_mask, reference_point
-from dcm.tuning.report import plot_pareto, plot_solution_forces
+from dcm.tuning.report import plot_overview, plot_pareto, plot_solution_forces
 
 FREE_LOG = "robot_free_trials.npz"
 ROBOT_LOG = "robot_based_trials.npz"
@@ -379,10 +379,10 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
         },
     }
     (out_dir / "results.json").write_text(json.dumps(results, indent=2, default=float))
-    plot_pareto(out_dir / "pareto.png", free_predicted[np.isfinite(free_predicted).all(axis=1)], finite(validated),
-                finite(robot_based), reference, type(model).__name__)
-    _plot_best(out_dir / "solution_forces.png", model_objective, free_params[chosen], validated, validation.trials,
-               demo)
+    pareto = (free_predicted[np.isfinite(free_predicted).all(axis=1)], finite(validated), finite(robot_based),
+              reference, type(model).__name__)
+    plot_pareto(out_dir / "pareto.png", *pareto)
+    _plot_best(out_dir, model_objective, free_params[chosen], validated, validation.trials, demo, pareto)
     return results
 
 
@@ -392,17 +392,18 @@ def _torch_threads() -> int:
     return int(torch.get_num_threads())
 
 
-def _plot_best(path: Path, objective: ModelObjective, params: np.ndarray, validated: np.ndarray,
-               trials: list[Any], demo: Any) -> None:
-    """Forces of the validated solution with the lowest genuine L_task."""
+def _plot_best(out_dir: Path, objective: ModelObjective, params: np.ndarray, validated: np.ndarray,
+               trials: list[Any], demo: Any, pareto: tuple) -> None:
+    """solution_forces.png and overview.png of the validated solution with the lowest genuine L_task."""
     if not len(params) or np.isnan(validated[:, 0]).all():
         return
     best = int(np.nanargmin(validated[:, 0]))
     stiffness, predicted, _ = objective.predict(params[best : best + 1], first_trial=PLOT_BATCH)
-    plot_solution_forces(path, demo.dt, demo.force_demo, None if predicted is None else predicted[0],
-                         trials[best].force_obs, stiffness[0],
-                         f"validated solution {best}: L_task={validated[best, 0]:.2f} N, "
-                         f"L_comp={validated[best, 1]:.2f} kN/m")
+    forces = (demo.dt, demo.force_demo, None if predicted is None else predicted[0], trials[best].force_obs,
+              stiffness[0])
+    title = f"validated solution {best}: L_task={validated[best, 0]:.2f} N, L_comp={validated[best, 1]:.2f} kN/m"
+    plot_solution_forces(out_dir / "solution_forces.png", *forces, title)
+    plot_overview(out_dir / "overview.png", pareto, *forces, f"{demo.spec.name}: {title}")
 
 
 __all__ = ["TrialLog", "TuneConfigError", "check_config", "check_predictor", "fingerprints", "pick_spread", "tune",

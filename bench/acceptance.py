@@ -1,0 +1,90 @@
+"""Acceptance of the shipped predictors on skills they never trained on, beside the references.
+
+    python -m dcm.data.generate dataset=acceptance        # once: data/acceptance.h5 (80 trials, ~45 s)
+    python bench/acceptance.py [--models models] [--datasets data/sim.h5:test data/acceptance.h5:test]
+
+For each dataset split it scores every shipped force model (with its own sampler, and with DDIM-5, which is
+what tune.py uses), the shipped stiffness ridge, and copy-F_demo, and writes reports/acceptance.md. The
+target is the DCM's within-skill R >= 0.85; the script prints whether it is met and never fails on it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from dcm.evaluate import evaluate  # noqa: E402
+
+TARGET_R_WITHIN = 0.85
+COLUMNS = ("R_within", "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
+
+
+def _cells(row: dict) -> str:
+    values = [row.get(key) for key in COLUMNS]
+    return " | ".join("–" if value is None or value != value else f"{value:.3f}" for value in values)  # nan: –
+
+
+def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str], dict[str, float]]:
+    """Markdown rows for one dataset split, and the DCM's R within skill per sampler."""
+    ridge = models / "stiffness_ridge_sim.json"
+    rows, dcm_scores = [], {}
+    result = None
+    for ckpt in sorted(models.glob("*.ckpt")):
+        for sampler, steps in ((None, None), ("ddim", 5)):
+            if sampler and not ckpt.name.startswith("dcm"):
+                continue
+            result = evaluate(ckpt, dataset, split=split, reference=ridge, sampler=sampler, sampling_steps=steps)
+            label = f"`{ckpt.name}` ({result['sampler']} {result['sampling_steps']})"
+            rows.append(f"| {label} | {_cells(result)} |")
+            if ckpt.name == "dcm_sim.ckpt":
+                dcm_scores[label] = result["R_within"]
+    if result is not None:
+        for name, ref in result["references"].items():
+            rows.append(f"| {name} (reference) | {_cells(ref)} |")
+    header = (f"\n### `{dataset.name}`, {split} split: {result['n'] if result else 0} trials, "
+              f"{result['n_skills'] if result else 0} skills\n\n"
+              "| predictor | R within | Spearman within | R pooled | force RMSE [N] | ÷ copy-F_demo |\n"
+              "|---|---|---|---|---|---|")
+    return [header, *rows], dcm_scores
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--models", type=Path, default=REPO / "models")
+    parser.add_argument("--datasets", nargs="+", default=["data/sim.h5:test", "data/acceptance.h5:test"],
+                        help="dataset:split pairs")
+    parser.add_argument("--out", type=Path, default=REPO / "reports" / "acceptance.md")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    lines = ["# Acceptance: the shipped predictors on skills they never trained on", "",
+             f"`python bench/acceptance.py` on {platform.node() or 'this machine'} ({platform.machine()}, "
+             f"{__import__('os').cpu_count()} cores). Target: the DCM's R within skill >= {TARGET_R_WITHIN}. "
+             "copy-F_demo predicts L_task = 0 for every schedule: it has no ranking, only a force error."]
+    verdicts = []
+    for pair in args.datasets:
+        name, _, split = pair.partition(":")
+        dataset = Path(name) if Path(name).is_absolute() else REPO / name
+        if not dataset.is_file():
+            print(f"error: {dataset} does not exist; see this script's docstring for the command that makes it",
+                  file=sys.stderr)
+            return 1
+        rows, scores = acceptance_rows(args.models, dataset, split or "test")
+        lines += rows
+        verdicts += [f"- `{dataset.name}` {split}: {label} R within {value:.3f}: "
+                     f"{'met' if value >= TARGET_R_WITHIN else 'NOT met'}" for label, value in scores.items()]
+    lines += ["", "## Target", "", *verdicts, "", f"Scoring took {time.perf_counter() - start:.0f} s."]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text("\n".join(lines) + "\n")
+    print("\n".join(verdicts))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
