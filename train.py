@@ -6,9 +6,15 @@
     python train.py stage=finetune init_from=<ckpt> data=realistic     # keeps the pre-training normaliser
     python train.py resume=<run_dir>                      # continue a killed run from <run_dir>/checkpoints/last.ckpt
     python train.py resume=<run_dir> trainer.max_epochs=400   # ... or extend it (key=value overrides apply)
+    python train.py -m +experiment=diffusion_steps        # a paper study (conf/experiment/): report with dcm.model_study
+    python train.py -m +experiment=usage_rate hydra/launcher=joblib hydra.launcher.n_jobs=4   # runs in parallel
+    python train.py -m +experiment=usage_rate hydra/launcher=submitit_slurm hydra.launcher.partition=<p> \
+        hydra.launcher.timeout_min=120 hydra.launcher.cpus_per_task=4   # one SLURM job per run (pip install -e .[cluster])
 
 Each run directory holds config.yaml (resolved), tb/ (TensorBoard), checkpoints/ (top-k on checkpoint.monitor, default val/R_within, + last.ckpt)
-and summary.json.
+and summary.json. A run directory that already holds a finished run of the same config is skipped (its
+summary.json is reused), and an unfinished one is resumed, so re-running a sweep only trains what is missing;
+one holding another config is refused.
 
 Every split the run will read (train, valid, and test when ``test_after_fit``) is validated before fitting.
 A user error (bad setting, unusable dataset or checkpoint, a missing resume folder, an accelerator this
@@ -35,7 +41,7 @@ from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
-from dcm.cli import check_accelerator
+from dcm.cli import check_accelerator, config_diff, load_json
 from dcm.data.datamodule import DCMDataModule
 from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
@@ -179,6 +185,36 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     return summary
 
 
+def planned_config(cfg: DictConfig) -> dict[str, Any]:
+    """The config train() will save in config.yaml (paths made absolute), without generating any dataset."""
+    planned = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    planned.data.path = str(Path(to_absolute_path(str(cfg.data.path))))
+    if cfg.init_from:
+        planned.init_from = str(Path(to_absolute_path(str(cfg.init_from))))
+    return OmegaConf.to_container(planned)  # type: ignore[return-value]
+
+
+def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
+    """What an existing ``run_dir`` already holds, so a re-run sweep (same sweep dir) costs nothing.
+
+    A finished run of the same config returns its summary.json; a killed one (last.ckpt, no summary) is
+    continued (sets ``cfg.resume``); a run of another config is refused, naming what differs. A folder
+    without checkpoints (a run that failed before its first epoch) is simply reused.
+    """
+    saved, summary, last = run_dir / "config.yaml", run_dir / "summary.json", run_dir / "checkpoints" / "last.ckpt"
+    if not saved.is_file() or not (summary.is_file() or last.is_file()):
+        return None
+    differs = config_diff(OmegaConf.to_container(OmegaConf.load(saved)), planned_config(cfg), ignore=("resume",))
+    if differs:
+        raise TrainConfigError(f"{run_dir} holds a run of another config ({'; '.join(differs)}); delete it or "
+                               "choose another hydra.run.dir / hydra.sweep.dir")
+    if summary.is_file():
+        return load_json(summary)
+    log.info("%s: unfinished run of the same config: resuming it from checkpoints/last.ckpt", run_dir)
+    cfg.resume = str(run_dir)
+    return None
+
+
 def check_resume_dir(run_dir: Path) -> Path:
     """The run directory to resume, refused unless it holds a saved config and ``checkpoints/last.ckpt``."""
     if not run_dir.is_dir():
@@ -222,9 +258,14 @@ def main(cfg: DictConfig) -> float | None:
     try:
         if cfg.get("resume"):
             cfg, run_dir = resolve_resume(cfg)
+            summary = train(cfg, run_dir)
         else:
             run_dir = Path(HydraConfig.get().runtime.output_dir)
-        summary = train(cfg, run_dir)
+            summary = reuse_run(cfg, run_dir)
+            if summary is not None:
+                print(f"{run_dir}: finished before with the same config (summary.json): skipped")
+            else:
+                summary = train(cfg, run_dir)
     except USER_ERRORS as err:
         # a sweep keeps Hydra's handling (the job is marked failed, the others still run)
         if os.environ.get("HYDRA_FULL_ERROR") == "1" or HydraConfig.get().mode == RunMode.MULTIRUN:
