@@ -1,0 +1,143 @@
+"""Write a collected study as study.md (tables and tests), study.png (metric vs setting) and study.json."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+LABELS = {"L_MSE": "L_MSE (normalised)", "force_rmse_N": "force RMSE [N]", "force_rmse_ratio_copy": "÷ copy-F_demo",
+          "R_within": "R within skill", "R_within_spearman": "Spearman within", "R_pooled": "R pooled",
+          "L_task_mae_N": "L_task MAE [N]"}
+# the reference drawn beside each metric: force errors against copying F_demo, rankings against the ridge
+REFERENCE_OF = {"force_rmse_N": "copy-F_demo", "force_rmse_ratio_copy": "copy-F_demo", "R_within": "stiffness-only ridge",
+                "R_within_spearman": "stiffness-only ridge", "R_pooled": "stiffness-only ridge",
+                "L_task_mae_N": "stiffness-only ridge"}
+ALPHA = 0.05
+
+
+def _num(value: Any) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+
+
+def _cell_text(summary: dict[str, Any]) -> str:
+    """mean ± std [min–max] over the seeds (one value when there is one seed)."""
+    n, mean = summary["n"], _num(summary.get("mean"))
+    if not n or mean is None:
+        return "–"
+    if n == 1:
+        return f"{mean:.3f}"
+    return f"{mean:.3f} ± {summary['std']:.3f} [{summary['min']:.3f}–{summary['max']:.3f}]"
+
+
+def _p_text(p: float | None) -> str:
+    if p is None:
+        return "– (n < 2 or no spread)"
+    return f"**{p:.3g}**" if p < ALPHA else f"{p:.3g}"
+
+
+def markdown(study: dict[str, Any], report_command: str) -> str:
+    """The study as Markdown: provenance, one table per split, the significance tests."""
+    spec, metrics = study["study"], study["study"]["metrics"]
+    lines = [f"# {spec['title'] or spec['name']}", "",
+             f"Sweep `{study['sweep_dir']}`: {sum(c['n_seeds'] for c in study['cells'])} scored runs in "
+             f"{len(study['cells'])} settings, on `{study['dataset']}`.", "",
+             f"- Runs: `{study['command']}` (config: `conf/experiment/{spec['name']}.yaml`; every run's resolved "
+             "config is its `config.yaml`).",
+             f"- Report: `{report_command}`.",
+             f"- Evaluations ran on: {study['machine']}.",
+             "- Cells: mean ± std [min–max] over the n seeds of each setting; each run scored with its checkpoint "
+             "selected on the experiment's `checkpoint.monitor`. References on the same trajectories: copy-F_demo "
+             "and the stiffness-only ridge fitted on the dataset's train split."]
+    if spec.get("evaluate_init"):
+        lines.append("- `stage=pretrain` rows: the runs' `init_from` checkpoints scored as they are (no fine-tuning); "
+                     "n counts distinct checkpoints.")
+    if study["unfinished"]:
+        lines.append(f"- Left out, unfinished (no summary.json): {', '.join(f'`{p}`' for p in study['unfinished'])}.")
+    for split, info in study["splits"].items():
+        lines += ["", f"## {split} ({info['n']} trajectories, {info['n_skills']} skill(s))", "",
+                  "| setting | n | " + " | ".join(LABELS.get(m, m) for m in metrics) + " |",
+                  "|---|---|" + "---|" * len(metrics)]
+        for cell in study["cells"]:
+            summary = cell["summary"][split]
+            lines.append(f"| {cell['label']} | {summary[metrics[0]]['n']} | "
+                         + " | ".join(_cell_text(summary[m]) for m in metrics) + " |")
+        for name, ref in study["references"].get(split, {}).items():
+            values = [f"{ref[m]:.3f}" if _num(ref.get(m)) is not None else "–" for m in metrics]
+            lines.append(f"| {name} | – | " + " | ".join(values) + " |")
+    if study["tests"]:
+        lines += ["", f"## Significance (Welch's t-test, two-sided; bold: p < {ALPHA})", "",
+                  "| split | metric | setting | against | mean − mean against | n / n against | t | p |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for t in study["tests"]:
+            diff, stat = _num(t["difference"]), _num(t["t"])
+            lines.append(f"| {t['split']} | {t['metric']} | {t['cell']} | {t['against']} | "
+                         f"{'–' if diff is None else format(diff, '+.3f')} | {t['n']} / {t['n_against']} | "
+                         f"{'–' if stat is None else format(stat, '.2f')} | {_p_text(t['p'])} |")
+    common = study["common_config"]
+    lines += ["", "<details><summary>Resolved config shared by every run</summary>", "", "```yaml",
+              yaml.safe_dump(common, sort_keys=True, width=120).rstrip(), "```", "", "</details>", ""]
+    return "\n".join(lines)
+
+
+def _x_values(cells: list[dict[str, Any]], key: str) -> tuple[list[Any], bool]:
+    """The distinct x values in cell order, and whether they are all numbers."""
+    xs = list(dict.fromkeys(c["values"][key] for c in cells))
+    numeric = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in xs)
+    return xs, numeric
+
+
+def figure(study: dict[str, Any], path: Path) -> None:
+    """Metric vs the swept value, one line per series, error bars = std over seeds, references dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    spec, cells, metrics, splits = study["study"], study["cells"], study["study"]["metrics"], list(study["splits"])
+    xs, numeric = _x_values(cells, spec["x"])
+    series = list(dict.fromkeys(c["values"].get(spec["series"]) if spec["series"] else None for c in cells))
+    fig, axes = plt.subplots(len(splits), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(splits)),
+                             squeeze=False)
+    for row, split in enumerate(splits):
+        for col, metric in enumerate(metrics):
+            ax = axes[row][col]
+            for s_index, name in enumerate(series):
+                members = [c for c in cells if not spec["series"] or c["values"].get(spec["series"]) == name]
+                points = [(c["values"][spec["x"]], c["summary"][split][metric]) for c in members]
+                points = [(x, s) for x, s in points if _num(s["mean"]) is not None]
+                if not points:
+                    continue
+                pos = [x if numeric else xs.index(x) + 0.08 * s_index for x, _ in points]
+                ax.errorbar(pos, [s["mean"] for _, s in points],
+                            yerr=[0.0 if _num(s["std"]) is None else s["std"] for _, s in points],
+                            marker="o", capsize=3, label=str(name) if spec["series"] else None)
+            ref_name = REFERENCE_OF.get(metric)
+            ref = _num(study["references"].get(split, {}).get(ref_name, {}).get(metric)) if ref_name else None
+            if ref is not None:
+                ax.axhline(ref, color="grey", linestyle="--", linewidth=1, label=ref_name)
+            if numeric and spec.get("log_x"):
+                ax.set_xscale("log")
+                ax.minorticks_off()
+            ax.set_xticks(xs if numeric else range(len(xs)), [str(x) for x in xs], rotation=0 if numeric else 30)
+            ax.set_title(f"{split}: {LABELS.get(metric, metric)}", fontsize=9)
+            ax.set_xlabel(spec["x"], fontsize=8)
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7)
+    fig.suptitle(f"{spec['title'] or spec['name']} (mean ± std over seeds)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write(study: dict[str, Any], out_dir: Path, report_command: str) -> dict[str, Path]:
+    """study.md, study.png and study.json in ``out_dir``; returns their paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"md": out_dir / "study.md", "png": out_dir / "study.png", "json": out_dir / "study.json"}
+    paths["md"].write_text(markdown(study, report_command))
+    figure(study, paths["png"])
+    paths["json"].write_text(json.dumps({**study, "report_command": report_command}, indent=1, default=str) + "\n")
+    return paths

@@ -1,0 +1,75 @@
+"""A model study end to end on the tiny data: the experiment's sweep, its report, a re-run, the submitit launcher."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from test_train_cli import REPO, TINY, _run
+
+from dcm.model_study.__main__ import main as study_main
+from dcm.model_study.stats import welch_test
+
+# 2 settings x 2 seeds of the diffusion-steps study, 1 epoch each; T = 30 is the study's reference setting
+SWEEP = ["-m", "+experiment=diffusion_steps", "model.diffusion_steps=1,30", "seed=0,1"]
+
+
+@pytest.fixture(scope="module")
+def study(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
+    root = tmp_path_factory.mktemp("study")
+    args = [str(REPO / "train.py"), *SWEEP, "data=path", f"data.path={tiny_dataset_path}", *TINY,
+            f"hydra.sweep.dir={root / 'sweep'}"]
+    _run(args, cwd=root)
+    return root, args
+
+
+def test_report_aggregates_seeds_beside_references_with_tests(study: tuple[Path, list[str]]) -> None:
+    root, _ = study
+    paths = study_main([str(root / "sweep"), "--out", str(root / "report")])
+    result = json.loads(paths["json"].read_text())
+    assert [c["label"] for c in result["cells"]] == ["model.diffusion_steps=30", "model.diffusion_steps=1"]
+    for cell in result["cells"]:
+        assert cell["n_seeds"] == 2 and sorted(r["seed"] for r in cell["runs"]) == [0, 1]
+        for split in ("valid", "test"):
+            assert cell["summary"][split]["force_rmse_N"]["n"] == 2
+            assert {"mean", "std", "median", "min", "max"} <= set(cell["summary"][split]["L_MSE"])
+    assert result["references"]["test"]["copy-F_demo"]["force_rmse_N"] > 0
+    tests = [t for t in result["tests"] if t["split"] == "valid" and t["metric"] == "R_within"]
+    assert len(tests) == 1 and tests[0]["against"] == "model.diffusion_steps=30" and tests[0]["n_against"] == 2
+    md = paths["md"].read_text()
+    assert "| model.diffusion_steps=1 | 2 |" in md and "| copy-F_demo |" in md and "+experiment=diffusion_steps" in md
+    assert "Evaluations ran on:" in md and paths["png"].stat().st_size > 10_000
+    assert list((root / "sweep").glob("*/eval_tiny_valid.json")), "evaluations are cached next to the runs"
+
+
+def test_rerun_skips_finished_runs_and_submitit_runs_the_new_ones(study: tuple[Path, list[str]]) -> None:
+    root, args = study
+    before = {p: p.stat().st_mtime_ns for p in (root / "sweep").glob("*/checkpoints/last.ckpt")}
+    proc = _run(args, cwd=root)
+    assert proc.stdout.count("with the same config (summary.json): skipped") == 4, proc.stdout[-2000:]
+    # extend the sweep by T = 2 with the submitit launcher's local executor: T = 1 is skipped, T = 2 trains
+    extended = [a if a != "model.diffusion_steps=1,30" else "model.diffusion_steps=1,2" for a in args]
+    _run([*[a for a in extended if a != "seed=0,1"], "seed=0", "hydra/launcher=submitit_local",
+          "hydra.launcher.timeout_min=5"], cwd=root)
+    after = {p: p.stat().st_mtime_ns for p in before}
+    assert after == before, "a finished run was trained again"
+    new = [p for p in (root / "sweep").glob("*diffusion_steps-2__*") if p.is_dir()]
+    assert len(new) == 1 and (new[0] / "summary.json").is_file()
+
+
+def test_bad_sweep_dir_is_one_line_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        study_main([str(tmp_path / "nosuch")])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1
+    assert err.startswith("error: ") and str(tmp_path / "nosuch") in err
+
+
+def test_welch_test_known_answer() -> None:
+    # means 2 and 5, both variances 1, n = 3: t = -3 / sqrt(2/3) = -3.674, df = 4, two-sided p = 0.0213
+    result = welch_test([1.0, 2.0, 3.0], [4.0, 5.0, 6.0])
+    assert result["t"] == pytest.approx(-3.6742, abs=1e-4) and result["df"] == pytest.approx(4.0)
+    assert result["p"] == pytest.approx(0.021312, abs=1e-5) and result["difference"] == pytest.approx(-3.0)
+    assert welch_test([1.0], [2.0, 3.0])["p"] is None  # one seed: no test
+    assert welch_test([1.0, float("nan"), 1.0], [1.0, 1.0])["p"] is None  # NaN dropped; no spread: no test
