@@ -12,7 +12,7 @@ $(BIN)/dcm-installed: pyproject.toml
 	$(BIN)/pip install -q -e ".[dev]"
 	touch $@
 
-.PHONY: install demo rollout test bench
+.PHONY: install demo rollout test bench acceptance study-tuning
 install: $(BIN)/dcm-installed
 
 # The main job: the shipped DCM tunes a path it never saw, robot-free, and the simulator validates the result.
@@ -29,3 +29,19 @@ test: install
 bench: install
 	$(BIN)/python bench/sim_throughput.py
 	$(BIN)/python bench/model_throughput.py
+
+# Shipped predictors on skills they never trained on -> reports/acceptance.md (generates data/acceptance.h5 once).
+acceptance: install
+	test -f data/acceptance.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance
+	$(BIN)/python bench/acceptance.py
+
+# One command per model study (conf/experiment/<name>.yaml; cost in its header), e.g. `make study-realistic`:
+# a Hydra multirun into outputs/studies/<name> (re-running skips finished runs), then reports/study_<name>/.
+study-%: install
+	$(BIN)/python train.py -m +experiment=$*
+	$(BIN)/python -m dcm.model_study outputs/studies/$* --out reports/study_$*
+
+# The tuning study (paper Figs. 10-11) with the shipped predictors: 16 seeds on the wavelike skill (~30 min).
+study-tuning: install
+	$(BIN)/python -m dcm.tuning.study ckpt=models/dcm_sim.ckpt baseline_ckpt=models/baseline_sim.ckpt \
+		reference_json=models/stiffness_ridge_sim.json seeds=16 hydra.run.dir=outputs/studies/tuning

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -117,7 +118,7 @@ def main(argv: list[str] | None = None) -> str:
         tag = "_".join(filter(None, [tag, "ref-" + Path(args.reference).stem]))
     text = table(collect(runs, args.dataset, args.splits, tag, **overrides), args.splits)
     header = (f"Dataset `{args.dataset}`; median [range] over seeds; checkpoints selected on val/R_within. "
-              f"Command: `python -m dcm.model_table {' '.join(argv)}`")
+              f"Command: `python -m dcm.model_table {shlex.join(argv)}`")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(header + "\n\n" + text + "\n")

@@ -21,7 +21,7 @@ METRICS = (("R_within", "R within skill"), ("R_within_spearman", "Spearman withi
 
 
 def _number(value: Any) -> str:
-    return "–" if value is None else f"{value:.3f}"
+    return "–" if value is None or value != value else f"{value:.3f}"  # value != value: nan (too few trials)
 
 
 def _evaluation_rows(name: str, evaluations: dict[str, Any]) -> list[str]:
@@ -31,7 +31,8 @@ def _evaluation_rows(name: str, evaluations: dict[str, Any]) -> list[str]:
         cells = [_number(result.get(metric)) for metric, _ in METRICS]
         refs = result.get("references") or {}
         ref_cells = [_number((refs.get("stiffness_ridge") or {}).get("R_within"))]
-        settings = f"{result.get('sampler')} {result.get('sampling_steps')} steps, k={result.get('n_samples')}"
+        settings = (f"{result.get('sampler')}, {result.get('sampling_steps')} steps, k={result.get('n_samples')}"
+                    if result.get("model") == "dcm" else "one pass")
         rows.append(f"| {name} | {tag} ({result.get('n')} trials, {result.get('n_skills')} skills) | {settings} | "
                     + " | ".join(cells + ref_cells) + " |")
     return rows
@@ -40,7 +41,7 @@ def _evaluation_rows(name: str, evaluations: dict[str, Any]) -> list[str]:
 def card_markdown(folder: Path) -> str:
     """Markdown describing every .ckpt and reference .json in ``folder``."""
     lines = ["# Shipped predictors", "",
-             f"Written by `python -m dcm.models.model_card {folder}`; every number comes from the files' own "
+             f"Written by `python -m dcm.models.model_card {folder.name}/`; every number comes from the files' own "
              "records (the training run's selected checkpoint, evaluated with `python -m dcm.evaluate`).", "",
              "| file | kind | MB | dcm | trained on (plan fingerprint) | trajectories used | command | selected on |",
              "|---|---|---|---|---|---|---|---|"]

@@ -1,0 +1,41 @@
+"""The predictors shipped in models/: present, loadable by this code version, self-describing, and described
+by a card that matches the files."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dcm.models.configuration import CheckpointVersionWarning
+from dcm.models.export import checkpoint_card
+from dcm.models.model_card import card_markdown
+from dcm.models.predict import load_model, predict_task_loss
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+SHIPPED = ("dcm_sim.ckpt", "baseline_sim.ckpt", "dcm_realistic.ckpt", "stiffness_ridge_sim.json")
+
+
+def test_every_documented_predictor_is_shipped_and_the_card_matches_the_files() -> None:
+    for name in SHIPPED:
+        assert (MODELS / name).is_file(), name
+    assert (MODELS / "README.md").read_text() == card_markdown(MODELS), \
+        "models/README.md is stale: python -m dcm.models.model_card models/ > models/README.md"
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_a_shipped_predictor_loads_silently_and_scores_schedules(name: str) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CheckpointVersionWarning)
+        predictor = load_model(MODELS / name)
+    if name.endswith(".ckpt"):
+        card = checkpoint_card(MODELS / name)
+        assert card["dataset"]["plan_fingerprint"] and card["train_command"].startswith("python train.py")
+        assert (MODELS / name).stat().st_size < 8e6
+    rng = np.random.default_rng(0)
+    x_demo, F_demo, x_attr = (rng.normal(scale=0.01, size=(2, 160, 6)) for _ in range(3))
+    K = np.full((2, 160, 6), 800.0)
+    loss = predict_task_loss(predictor, x_demo, F_demo, x_attr, K)
+    assert loss.shape == (2,) and np.isfinite(loss).all()
