@@ -6,7 +6,8 @@
 Each run directory's selected checkpoint (``summary.json``'s ``best_checkpoint``, else ``last.ckpt``) is scored
 by :func:`dcm.evaluate.evaluate` on each split; the result is cached next to the run
 (``eval_<dataset>_<split>[_<tag>].json``) so re-running the table costs nothing. Cells give the median over
-seeds and the range. The references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's train
+seeds and the range; the interval column gives the bootstrap 90 % interval of R within skill (trials
+resampled within skills, median bounds over seeds), which says how much the split's trials can tell. The references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's train
 split) come from the same evaluations, so they sit on exactly the trajectories the models were scored on.
 """
 
@@ -24,8 +25,10 @@ import numpy as np
 
 from dcm.models.export import run_checkpoint
 
+INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
 COLUMNS = (("force_rmse_N", "force RMSE [N]"), ("force_rmse_ratio_copy", "÷ copy-F_demo"),
-           ("R_within", "R within skill"), ("R_within_spearman", "Spearman within"), ("R_pooled", "R pooled"))
+           ("R_within", "R within skill"), (INTERVAL, "R within: 90 % interval"),
+           ("R_within_spearman", "Spearman within"), ("R_pooled", "R pooled"))
 
 
 def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overrides: Any) -> dict[str, Any]:
@@ -37,7 +40,7 @@ def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overr
     ckpt = run_checkpoint(run_dir)
     if path.is_file():
         cached = json.loads(path.read_text())
-        if cached.get("ckpt") == str(ckpt.resolve()):
+        if cached.get("ckpt") == str(ckpt.resolve()) and "R_within_lo" in cached:
             return cached
     result = evaluate(ckpt, dataset, split=split, **overrides)
     path.write_text(json.dumps(result, indent=1))
@@ -54,6 +57,16 @@ def cell(values: list[float]) -> str:
     return f"{np.median(values):.3f} [{min(values):.3f}–{max(values):.3f}]"
 
 
+def interval_cell(results: list[dict[str, Any]]) -> str:
+    """The bootstrap interval of R_within (trials resampled within skills), median bounds over seeds."""
+    bounds = [(r.get("R_within_lo"), r.get("R_within_hi")) for r in results]
+    bounds = [(lo, hi) for lo, hi in bounds if lo is not None and hi is not None and np.isfinite(lo) and np.isfinite(hi)]
+    if not bounds:
+        return "–"
+    lo, hi = np.median(np.array(bounds), axis=0)
+    return f"{lo:.2f} to {hi:.2f}"
+
+
 def table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: list[str]) -> str:
     """Markdown: one row per model (and reference), one column group per split."""
     head = ["model", "seeds"] + [f"{s}: {label}" for s in splits for _, label in COLUMNS]
@@ -63,7 +76,8 @@ def table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: list[str]) -
         cells = [label, str(n)]
         for split in splits:
             results = per_split.get(split, [])
-            cells += [cell([r.get(key) for r in results]) for key, _ in COLUMNS]
+            cells += [interval_cell(results) if key == INTERVAL else cell([r.get(key) for r in results])
+                      for key, _ in COLUMNS]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -14,6 +14,7 @@ from dcm.models.metrics import (
     force_prediction_metrics,
     ranking_metrics,
     within_skill_correlation,
+    within_skill_interval,
 )
 
 
@@ -98,3 +99,21 @@ def test_force_rmse_next_to_copy_demo() -> None:
     # the L_task implied by the forces: copy-F_demo predicts 0 everywhere, so it ranks nothing
     m, L_pred, L_true = force_prediction_metrics(F_demo, F_obs, F_demo, np.zeros(4, int))
     assert np.all(L_pred == 0) and math.isnan(m["R_within"]) and m["L_task_mae_N"] == pytest.approx(L_true.mean())
+
+
+def test_interval_is_narrow_for_many_trials_and_wide_when_one_trial_carries_the_correlation() -> None:
+    rng = np.random.default_rng(2)
+    true = rng.normal(size=200)
+    pred = true + 0.5 * rng.normal(size=200)  # R = 1 / sqrt(1.25) = 0.89
+    lo, hi = within_skill_interval(pred, true, np.zeros(200))
+    assert lo < within_skill_correlation(pred, true, np.zeros(200))[0] < hi and hi - lo < 0.1
+    # the wavelike test skill's case: 29 trials unrelated to the truth, one outlier both get right
+    true, pred = rng.normal(size=30) * 0.01, rng.normal(size=30) * 0.01
+    true[0], pred[0] = 0.2, 0.2
+    r = within_skill_correlation(pred, true, np.zeros(30))[0]
+    lo, hi = within_skill_interval(pred, true, np.zeros(30))
+    assert r > 0.8 and lo < 0.1 and hi > 0.9
+    assert within_skill_interval(pred, true, np.zeros(30)) == (lo, hi)  # seeded
+    m = ranking_metrics(pred, true, np.zeros(30))
+    assert (m["R_within_lo"], m["R_within_hi"]) == (lo, hi)
+    assert all(math.isnan(v) for v in within_skill_interval(np.zeros(4), np.arange(4.0), np.zeros(4)))

@@ -22,6 +22,23 @@ import numpy as np
 from dcm.data.schema import CHANNELS, FIELDS, SPLITS, DatasetError, _decode_attr, load_dataset
 
 
+def within_demo_spread(L_task: np.ndarray, demo_ids: np.ndarray) -> str:
+    """How much stiffness moves L_task inside one demo: p90/p10 over its trials, median [range] over demos.
+
+    The tuner ranks one demo's schedules, so a split whose demos barely vary says little about ranking."""
+    ratios = []
+    for demo in np.unique(demo_ids):
+        lt = L_task[demo_ids == demo]
+        lt = lt[np.isfinite(lt)]
+        if lt.size >= 3:
+            p10, p90 = np.percentile(lt, [10, 90])
+            if p10 > 0:
+                ratios.append(p90 / p10)
+    if not ratios:
+        return "–"
+    return f"{np.median(ratios):.2f} [{min(ratios):.2f}–{max(ratios):.2f}]"
+
+
 def summarize(path: Path) -> str:
     """A human-readable summary; loading validates the file first, so a damaged file fails here."""
     everything = load_dataset(path, include_failed=True)
@@ -39,7 +56,8 @@ def summarize(path: Path) -> str:
     with h5py.File(path, "r") as f:
         masks = {s: [n.decode() for n in f["mask"][s][()]] for s in f["mask"]}
     index = {name: i for i, name in enumerate(everything.names)}
-    lines.append("  split     trajs  demos   L_task [N] min/median/max     L_comp [kN/m] min/median/max")
+    lines.append("  split     trajs  demos   L_task [N] min/median/max     L_comp [kN/m] min/median/max"
+                 "   L_task p90/p10 in a demo")
     for split in [s for s in SPLITS if s in masks] + [s for s in masks if s not in SPLITS]:
         rows = [index[n] for n in masks[split] if n in index]
         if not rows:
@@ -49,7 +67,8 @@ def summarize(path: Path) -> str:
         n_demos = len(set(everything.demo_ids[rows]))
         lines.append(f"  {split:<8} {len(rows):>6} {n_demos:>6}   "
                      f"{lt.min():7.3f} {np.median(lt):7.3f} {lt.max():7.3f}        "
-                     f"{lc.min():7.3f} {np.median(lc):7.3f} {lc.max():7.3f}")
+                     f"{lc.min():7.3f} {np.median(lc):7.3f} {lc.max():7.3f}   "
+                     f"{within_demo_spread(lt, everything.demo_ids[rows])}")
     # group failure reasons by their wording (numbers masked), keep one full example each
     failures = [str(m.get("failure_reason", "")) for m, bad in zip(everything.meta, failed) if bad]
     kinds: dict[str, list[str]] = {}

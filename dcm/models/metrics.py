@@ -29,6 +29,7 @@ from dcm.data.schema import CHANNELS
 Method = Literal["pearson", "spearman"]
 WRENCH_AXES: tuple[str, ...] = tuple(c.split("_")[0] for c in CHANNELS["F_obs"])  # Fx, Fy, Fz, Tx, Ty, Tz
 MIN_TRIALS = 3  # a correlation over 2 points is always +-1: it says nothing about ranking
+CI_LEVEL, CI_RESAMPLES = 0.9, 1000  # the bootstrap interval of R_within
 
 
 def correlation(pred: np.ndarray, true: np.ndarray, method: Method = "pearson") -> float:
@@ -73,11 +74,52 @@ def within_skill_correlation(pred: np.ndarray, true: np.ndarray, skills: np.ndar
     return (float(np.mean(values)) if values else float("nan")), len(values)
 
 
+def _rowwise_pearson(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Pearson correlation of each row pair of two (B, n) arrays; NaN where a row is constant."""
+    pred = pred - pred.mean(axis=1, keepdims=True)
+    true = true - true.mean(axis=1, keepdims=True)
+    norm = np.sqrt((pred**2).sum(axis=1) * (true**2).sum(axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(norm > 0, (pred * true).sum(axis=1) / norm, np.nan)
+
+
+def within_skill_interval(pred: np.ndarray, true: np.ndarray, skills: np.ndarray, level: float = CI_LEVEL,
+                          n_resamples: int = CI_RESAMPLES, seed: int = 0,
+                          min_trials: int = MIN_TRIALS) -> tuple[float, float]:
+    """Bootstrap interval of the within-skill Pearson R: trials resampled with replacement inside each skill.
+
+    It says how much a split can tell: one skill of 30 trials whose L_task barely varies gives an interval
+    wide enough to hold both a useless and a good ranking. Seeded, so the same inputs give the same bounds.
+    """
+    pred = np.asarray(pred, dtype=np.float64).ravel()
+    true = np.asarray(true, dtype=np.float64).ravel()
+    skills = np.asarray(skills).ravel()
+    rng = np.random.default_rng(seed)
+    per_skill = []
+    for skill in np.unique(skills):
+        sel = np.flatnonzero((skills == skill) & np.isfinite(pred) & np.isfinite(true))
+        if sel.size < min_trials:
+            continue
+        draw = sel[rng.integers(0, sel.size, size=(n_resamples, sel.size))]
+        per_skill.append(_rowwise_pearson(pred[draw], true[draw]))
+    if not per_skill:
+        return float("nan"), float("nan")
+    rs = np.stack(per_skill)  # (skills, resamples); NaN where a resample made a skill's L_task constant
+    counts = np.isfinite(rs).sum(axis=0)
+    means = np.nansum(rs, axis=0)[counts > 0] / counts[counts > 0]
+    if means.size == 0:
+        return float("nan"), float("nan")
+    tail = 50.0 * (1.0 - level)
+    lo, hi = np.percentile(means, [tail, 100.0 - tail])
+    return float(lo), float(hi)
+
+
 def ranking_metrics(L_pred: np.ndarray, L_true: np.ndarray, skills: np.ndarray | None) -> dict[str, float]:
     """Predicted vs true L_task [N] over trajectories of one split.
 
     Keys: ``R_within`` / ``R_within_spearman`` (per-skill Pearson / Spearman averaged over skills; the
-    checkpoint-selection metric), ``R_within_n_skills`` (skills used), ``R_pooled`` (Pearson over all
+    checkpoint-selection metric), ``R_within_n_skills`` (skills used), ``R_within_lo`` / ``R_within_hi`` (the
+    bootstrap 90 % interval of ``R_within``, :func:`within_skill_interval`), ``R_pooled`` (Pearson over all
     trajectories), ``L_task_mae_N`` (mean absolute error of L_task). ``skills=None`` (no labels) leaves
     the within-skill values NaN.
     """
@@ -85,14 +127,18 @@ def ranking_metrics(L_pred: np.ndarray, L_true: np.ndarray, skills: np.ndarray |
     L_true = np.asarray(L_true, dtype=np.float64).ravel()
     if skills is None:
         r_within, r_within_s, n_skills = float("nan"), float("nan"), 0
+        interval = (float("nan"), float("nan"))
     else:
         r_within, n_skills = within_skill_correlation(L_pred, L_true, skills, "pearson")
         r_within_s, _ = within_skill_correlation(L_pred, L_true, skills, "spearman")
+        interval = within_skill_interval(L_pred, L_true, skills)
     finite = np.isfinite(L_pred) & np.isfinite(L_true)
     return {
         "R_within": r_within,
         "R_within_spearman": r_within_s,
         "R_within_n_skills": int(n_skills),
+        "R_within_lo": interval[0],
+        "R_within_hi": interval[1],
         "R_pooled": correlation(L_pred, L_true, "pearson"),
         "L_task_mae_N": float(np.abs(L_pred[finite] - L_true[finite]).mean()) if finite.any() else float("nan"),
     }
@@ -133,5 +179,5 @@ def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.n
     return {**force_metrics(F_pred, F_obs, F_demo), **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
 
 
-__all__ = ["MIN_TRIALS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
-           "ranking_metrics", "within_skill_correlation"]
+__all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
+           "ranking_metrics", "within_skill_correlation", "within_skill_interval"]
