@@ -20,14 +20,14 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from dcm.evaluate import evaluate  # noqa: E402
+from dcm.model_table import INTERVAL, cell, interval_cell  # noqa: E402
 
 TARGET_R_WITHIN = 0.85
-COLUMNS = ("R_within", "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
+COLUMNS = ("R_within", INTERVAL, "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
 
 
 def _cells(row: dict) -> str:
-    values = [row.get(key) for key in COLUMNS]
-    return " | ".join("–" if value is None or value != value else f"{value:.3f}" for value in values)  # nan: –
+    return " | ".join(interval_cell([row]) if key == INTERVAL else cell([row.get(key)]) for key in COLUMNS)
 
 
 def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str], dict[str, float]]:
@@ -49,8 +49,8 @@ def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str],
             rows.append(f"| {name} (reference) | {_cells(ref)} |")
     header = (f"\n### `{dataset.name}`, {split} split: {result['n'] if result else 0} trials, "
               f"{result['n_skills'] if result else 0} skills\n\n"
-              "| predictor | R within | Spearman within | R pooled | force RMSE [N] | ÷ copy-F_demo |\n"
-              "|---|---|---|---|---|---|")
+              "| predictor | R within | R within: 90 % interval | Spearman within | R pooled | force RMSE [N] "
+              "| ÷ copy-F_demo |\n|---|---|---|---|---|---|---|")
     return [header, *rows], dcm_scores
 
 
