@@ -7,8 +7,9 @@ Each run directory's selected checkpoint (``summary.json``'s ``best_checkpoint``
 by :func:`dcm.evaluate.evaluate` on each split; the result is cached next to the run
 (``eval_<dataset>_<split>[_<tag>].json``) so re-running the table costs nothing. Cells give the median over
 seeds and the range; the interval column gives the bootstrap 90 % interval of R within skill (trials
-resampled within skills, median bounds over seeds), which says how much the split's trials can tell. The references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's train
-split) come from the same evaluations, so they sit on exactly the trajectories the models were scored on.
+resampled within skills, median bounds over seeds), which says how much the split's trials can tell. The
+references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's train split) come from the
+same evaluations, so they sit on exactly the trajectories the models were scored on.
 """
 
 from __future__ import annotations
