@@ -49,6 +49,19 @@ def correlation(pred: np.ndarray, true: np.ndarray, method: Method = "pearson") 
     raise ValueError(f"correlation method {method!r} is unknown; expected 'pearson' or 'spearman'")
 
 
+def _skill_trials(pred: np.ndarray, true: np.ndarray, skills: np.ndarray, min_trials: int,
+                  caller: str) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Flat float arrays and, per skill with >= ``min_trials`` finite trials, the indices of those trials."""
+    pred = np.asarray(pred, dtype=np.float64).ravel()
+    true = np.asarray(true, dtype=np.float64).ravel()
+    skills = np.asarray(skills).ravel()
+    if not (pred.shape == true.shape == skills.shape):
+        raise ValueError(f"{caller}: shapes differ: predicted {pred.shape}, true {true.shape}, skills {skills.shape}")
+    finite = np.isfinite(pred) & np.isfinite(true)
+    groups = [np.flatnonzero((skills == skill) & finite) for skill in np.unique(skills)]
+    return pred, true, [g for g in groups if g.size >= min_trials]
+
+
 def within_skill_correlation(pred: np.ndarray, true: np.ndarray, skills: np.ndarray, method: Method = "pearson",
                              min_trials: int = MIN_TRIALS) -> tuple[float, int]:
     """Mean over skills of the per-skill correlation, and how many skills entered the mean.
@@ -57,17 +70,9 @@ def within_skill_correlation(pred: np.ndarray, true: np.ndarray, skills: np.ndar
     defined ranking and are skipped; the mean is NaN when none is left. A plain (not Fisher-z) mean: each
     skill counts once, whatever its number of trials, as each tuning run does.
     """
-    pred = np.asarray(pred, dtype=np.float64).ravel()
-    true = np.asarray(true, dtype=np.float64).ravel()
-    skills = np.asarray(skills).ravel()
-    if not (pred.shape == true.shape == skills.shape):
-        raise ValueError(f"within_skill_correlation: shapes differ: predicted {pred.shape}, true {true.shape}, "
-                         f"skills {skills.shape}")
+    pred, true, groups = _skill_trials(pred, true, skills, min_trials, "within_skill_correlation")
     values = []
-    for skill in np.unique(skills):
-        sel = (skills == skill) & np.isfinite(pred) & np.isfinite(true)
-        if sel.sum() < min_trials:
-            continue
+    for sel in groups:
         r = correlation(pred[sel], true[sel], method)
         if np.isfinite(r):
             values.append(r)
@@ -91,15 +96,10 @@ def within_skill_interval(pred: np.ndarray, true: np.ndarray, skills: np.ndarray
     It says how much a split can tell: one skill of 30 trials whose L_task barely varies gives an interval
     wide enough to hold both a useless and a good ranking. Seeded, so the same inputs give the same bounds.
     """
-    pred = np.asarray(pred, dtype=np.float64).ravel()
-    true = np.asarray(true, dtype=np.float64).ravel()
-    skills = np.asarray(skills).ravel()
+    pred, true, groups = _skill_trials(pred, true, skills, min_trials, "within_skill_interval")
     rng = np.random.default_rng(seed)
     per_skill = []
-    for skill in np.unique(skills):
-        sel = np.flatnonzero((skills == skill) & np.isfinite(pred) & np.isfinite(true))
-        if sel.size < min_trials:
-            continue
+    for sel in groups:
         draw = sel[rng.integers(0, sel.size, size=(n_resamples, sel.size))]
         per_skill.append(_rowwise_pearson(pred[draw], true[draw]))
     if not per_skill:
