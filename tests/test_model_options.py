@@ -1,4 +1,4 @@
-"""The model options a user can switch: prediction type, residual target, z-score normalisation."""
+"""The model options a user can switch: prediction type, residual target, z-score normalisation, input scaling."""
 
 from __future__ import annotations
 
@@ -43,6 +43,39 @@ def test_bad_prediction_type_is_named() -> None:
         Baseline(net=dict(TINY_NET), target="delta")
     with pytest.raises(ModelInputError, match="normalization"):
         Baseline(net=dict(TINY_NET), normalization="robust")
+    with pytest.raises(ModelInputError, match="input_scaling"):
+        DCM(net=dict(TINY_NET), input_scaling="edm")
+
+
+def test_signal_input_scaling_feeds_about_zeros_at_pure_noise() -> None:
+    """"signal" scales x_t by sqrt(alpha_bar_t): ~0 at t = T-1, ~x_t at t = 0; "unit" is the net itself."""
+    sched = diffusion.make_scheduler("ddpm", "linear", 30, "sample")
+    seen = {}
+
+    def net(cond: torch.Tensor, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        seen["x"] = x
+        return x
+
+    assert diffusion.scale_noisy_input(net, sched, "unit") is net
+    scaled = diffusion.scale_noisy_input(net, sched, "signal")
+    x = torch.ones(2, 8, 6)
+    scaled(torch.zeros(2, 8, 24), x, torch.tensor([29, 0]))
+    assert float(seen["x"][0].abs().max()) < 0.01
+    torch.testing.assert_close(seen["x"][1], x[1] * float(sched.alphas_cumprod[0].sqrt()))
+    assert float(sched.alphas_cumprod[0].sqrt()) > 0.98
+
+
+def test_signal_input_scaling_trains_and_samples() -> None:
+    """One optimiser step and a DDIM prediction at tiny scale, with the option on."""
+    gen = torch.Generator().manual_seed(2)
+    cond, force = torch.randn(4, 8, 24, generator=gen), torch.randn(4, 8, 6, generator=gen)
+    model = DCM(net=dict(TINY_NET), diffusion_steps=10, input_scaling="signal", sampler="ddim", sampling_steps=2)
+    model.fit_normalizers(cond, force)
+    loss = model.loss(model.net, model.cond_norm.normalize(cond), model.normalized_target(cond, force))
+    loss.backward()
+    assert torch.isfinite(loss) and any(p.grad is not None for p in model.net.parameters())
+    samples = model.sample_normalized(model.cond_norm.normalize(cond), n_samples=2)
+    assert samples.shape == (2, 4, 8, 6) and torch.isfinite(samples).all()
 
 
 def test_zscore_maps_mean_pm_span_std_to_unit_range() -> None:

@@ -17,7 +17,7 @@ from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; 
     cond_channel_names,
     target_channel_names,
 )
-from dcm.models.diffusion import PREDICTION_TYPES
+from dcm.models.diffusion import INPUT_SCALINGS, PREDICTION_TYPES
 from dcm.models.normalizer import NORMALIZATIONS
 
 
@@ -138,6 +138,8 @@ class DCMConfig(ForceModelConfig):
     sampler: str = "ddpm"  # ddpm (ancestral, T steps) | ddim (deterministic, sampling_steps)
     sampling_steps: int | None = None  # DDIM only; None = T
     n_samples: int = 1  # k samples averaged per prediction during evaluation
+    # how the noisy force enters the net: unit (x_t, the paper's) | signal (x_t * sqrt(alpha_bar_t))
+    input_scaling: str = "unit"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -155,6 +157,8 @@ class DCMConfig(ForceModelConfig):
             raise ModelInputError(f"prediction_type must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if int(self.n_samples) < 1:
             raise ModelInputError(f"n_samples must be >= 1, got {self.n_samples}")
+        if self.input_scaling not in INPUT_SCALINGS:
+            raise ModelInputError(f"input_scaling must be one of {INPUT_SCALINGS}, got {self.input_scaling!r}")
 
 
 @dataclass

@@ -337,11 +337,13 @@ class DCM(ForceModel):
 
     def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
              generator: torch.Generator | None = None) -> torch.Tensor:
-        return diffusion.diffusion_loss(net, cond_n, target_n, self.train_scheduler, generator=generator)
+        net_in = diffusion.scale_noisy_input(net, self.train_scheduler, self.cfg.input_scaling)
+        return diffusion.diffusion_loss(net_in, cond_n, target_n, self.train_scheduler, generator=generator)
 
     def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
                           generator: torch.Generator | None = None) -> torch.Tensor:
-        return diffusion.sample_many(self.inference_net, cond_n, OUT_DIM, self.sample_scheduler, n_samples,
+        net_in = diffusion.scale_noisy_input(self.inference_net, self.sample_scheduler, self.cfg.input_scaling)
+        return diffusion.sample_many(net_in, cond_n, OUT_DIM, self.sample_scheduler, n_samples,
                                      num_inference_steps=self.cfg.sampling_steps, generator=generator)
 
 
