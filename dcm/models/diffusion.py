@@ -213,10 +213,15 @@ def make_scheduler(
     raise ScheduleError(f"unknown sampler kind {kind!r}; choose 'ddpm' or 'ddim'")
 
 
+def _alpha_bar_at(scheduler: Scheduler, timesteps: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """alpha_bar_t per batch row, on `like`'s device and dtype, shaped to broadcast over (B, ...)."""
+    ab = scheduler.alphas_cumprod.to(device=like.device, dtype=like.dtype)[timesteps.to(like.device).long()]
+    return ab.reshape(-1, *([1] * (like.dim() - 1)))
+
+
 def add_noise(scheduler: Scheduler, x0: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
     """Forward process q(x_t | x0) = sqrt(ab_t) x0 + sqrt(1 - ab_t) noise, for x0 of shape (B, ...)."""
-    ab = scheduler.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[timesteps.to(x0.device).long()]
-    ab = ab.reshape(-1, *([1] * (x0.dim() - 1)))
+    ab = _alpha_bar_at(scheduler, timesteps, x0)
     return ab.sqrt() * x0 + (1.0 - ab).sqrt() * noise
 
 
@@ -245,8 +250,7 @@ def training_target(scheduler: Scheduler, x0: torch.Tensor, noise: torch.Tensor,
         return noise
     if kind == "sample":
         return x0
-    ab = scheduler.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[timesteps.to(x0.device).long()]
-    ab = ab.reshape(-1, *([1] * (x0.dim() - 1)))
+    ab = _alpha_bar_at(scheduler, timesteps, x0)
     return ab.sqrt() * noise - (1.0 - ab).sqrt() * x0  # v_prediction
 
 
@@ -333,10 +337,8 @@ def scale_noisy_input(net: ScoreNet, scheduler: Scheduler, scaling: str = "unit"
         raise ScheduleError(f"input scaling must be one of {INPUT_SCALINGS}, got {scaling!r}")
     if scaling == "unit":
         return net
-    root_ab = scheduler.alphas_cumprod.sqrt()
 
     def scaled(cond: torch.Tensor, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        scale = root_ab.to(device=x.device, dtype=x.dtype)[t.to(x.device).long()]
-        return net(cond, x * scale.reshape(-1, *([1] * (x.dim() - 1))), t)
+        return net(cond, x * _alpha_bar_at(scheduler, t, x).sqrt(), t)
 
     return scaled
