@@ -41,7 +41,9 @@ study-%: install
 	$(BIN)/python train.py -m +experiment=$*
 	$(BIN)/python -m dcm.model_study outputs/studies/$* --out reports/study_$*
 
-# The tuning study (paper Figs. 10-11) with the shipped predictors: 16 seeds on the wavelike skill (~30 min).
+# The tuning study (paper Figs. 10-11) with the demo's predictors (trained on `diverse`): 16 seeds on the
+# wavelike skill (~30 min). The paper's protocol, predictors trained on spirals only: PREDICTORS=sim.
+PREDICTORS ?= diverse
 study-tuning: install
-	$(BIN)/python -m dcm.tuning.study ckpt=models/dcm_sim.ckpt baseline_ckpt=models/baseline_sim.ckpt \
-		reference_json=models/stiffness_ridge_sim.json seeds=16 hydra.run.dir=outputs/studies/tuning
+	$(BIN)/python -m dcm.tuning.study ckpt=models/dcm_$(PREDICTORS).ckpt baseline_ckpt=models/baseline_$(PREDICTORS).ckpt \
+		reference_json=models/stiffness_ridge_$(PREDICTORS).json seeds=16 hydra.run.dir=outputs/studies/tuning_$(PREDICTORS)

@@ -4,7 +4,7 @@
     python bench/acceptance.py [--models models] [--datasets data/sim.h5:test data/acceptance.h5:test]
 
 For each dataset split it scores every shipped force model (with its own sampler, and with DDIM-5, which is
-what tune.py uses), the shipped stiffness ridge, and copy-F_demo, and writes reports/acceptance.md. The
+what tune.py uses), every shipped stiffness ridge, and copy-F_demo, and writes reports/acceptance.md. The
 target is the DCM's within-skill R >= 0.85; the script prints whether it is met and never fails on it.
 """
 
@@ -21,6 +21,7 @@ sys.path.insert(0, str(REPO))
 
 from dcm.evaluate import evaluate  # noqa: E402
 from dcm.model_table import INTERVAL, cell, interval_cell  # noqa: E402
+from dcm.models.export import checkpoint_card  # noqa: E402
 
 TARGET_R_WITHIN = 0.85
 COLUMNS = ("R_within", INTERVAL, "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
@@ -31,22 +32,25 @@ def _cells(row: dict) -> str:
 
 
 def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str], dict[str, float]]:
-    """Markdown rows for one dataset split, and the DCM's R within skill per sampler."""
-    ridge = models / "stiffness_ridge_sim.json"
+    """Markdown rows for one dataset split, and each pre-trained DCM's R within skill per sampler."""
+    ridges = sorted(models.glob("stiffness_ridge_*.json"))
     rows, dcm_scores = [], {}
     result = None
     for ckpt in sorted(models.glob("*.ckpt")):
+        pretrained_dcm = ckpt.name.startswith("dcm") and checkpoint_card(ckpt).get("stage") == "pretrain"
         for sampler, steps in ((None, None), ("ddim", 5)):
             if sampler and not ckpt.name.startswith("dcm"):
                 continue
-            result = evaluate(ckpt, dataset, split=split, reference=ridge, sampler=sampler, sampling_steps=steps)
+            result = evaluate(ckpt, dataset, split=split, reference=ridges[0] if ridges else None,
+                              sampler=sampler, sampling_steps=steps)
             label = f"`{ckpt.name}` ({result['sampler']} {result['sampling_steps']})"
             rows.append(f"| {label} | {_cells(result)} |")
-            if ckpt.name == "dcm_sim.ckpt":
+            if pretrained_dcm:
                 dcm_scores[label] = result["R_within"]
     if result is not None:
-        for name, ref in result["references"].items():
-            rows.append(f"| {name} (reference) | {_cells(ref)} |")
+        rows.append(f"| copy_demo (reference) | {_cells(result['references']['copy_demo'])} |")
+    for ridge in ridges:  # each shipped ridge, named: they differ in the data they were fitted on
+        rows.append(f"| `{ridge.name}` (reference) | {_cells(evaluate(ridge, dataset, split=split))} |")
     header = (f"\n### `{dataset.name}`, {split} split: {result['n'] if result else 0} trials, "
               f"{result['n_skills'] if result else 0} skills\n\n"
               "| predictor | R within | R within: 90 % interval | Spearman within | R pooled | force RMSE [N] "

@@ -12,6 +12,7 @@ import torch
 import yaml
 from hydra import compose, initialize_config_dir
 
+from dcm.models.export import checkpoint_card
 from dcm.models.predict import load_model
 from dcm.tuning.compare import compare
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
@@ -163,9 +164,14 @@ def test_tune_refuses_a_checkpoint_of_another_control_rate(tiny_checkpoint: Path
         tune(cfg, tmp_path)
 
 
-def test_the_demo_config_tunes_a_curve_with_the_shipped_dcm():
-    """`make demo` runs tune.py --config-name quickstart: the shipped DCM on a path family it never trained on."""
+def test_the_demo_config_tunes_a_path_family_the_shipped_dcm_never_trained_on():
+    """`make demo` runs tune.py --config-name quickstart: the shipped DCM on a path family absent from the
+    train/valid skills of the dataset preset its card names."""
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
         cfg = compose("quickstart")
-    assert cfg.ckpt == "models/dcm_sim.ckpt" and cfg.demo.family == "curve"
+    card = checkpoint_card(REPO / cfg.ckpt)
+    assert card["kind"] == "dcm" and card["stage"] == "pretrain"
+    preset = yaml.safe_load((REPO / "conf/dataset" / f"{card['dataset']['dataset']}.yaml").read_text())
+    trained_families = {skill["spec"]["family"] for skill in preset["skills"] if skill["split"] != "test"}
+    assert trained_families and cfg.demo.family not in trained_families
     assert cfg.robot_free.n_trials == 1000 and cfg.robot_based.n_trials > 0
