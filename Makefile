@@ -42,7 +42,7 @@ study-%: install
 	$(BIN)/python -m dcm.model_study outputs/studies/$* --out reports/study_$*
 
 # The tuning study (paper Figs. 10-11) with the demo's predictors (trained on `diverse`): 16 seeds on the
-# wavelike skill (~30 min). The paper's protocol, predictors trained on spirals only: PREDICTORS=sim.
+# wavelike skill (~25 min). The paper's protocol, predictors trained on spirals only: PREDICTORS=sim.
 PREDICTORS ?= diverse
 study-tuning: install
 	$(BIN)/python -m dcm.tuning.study ckpt=models/dcm_$(PREDICTORS).ckpt baseline_ckpt=models/baseline_$(PREDICTORS).ckpt \
