@@ -47,7 +47,7 @@ from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
 from dcm.models.callbacks import ForceMetricsCallback, RunETACallback
 from dcm.models.configuration import CheckpointKindError
-from dcm.models.dcm import DCM, ForceModel
+from dcm.models.dcm import DCM, ForceModel, read_checkpoint
 from dcm.models.predict import checkpoint_kind
 
 log = logging.getLogger("dcm.train")
@@ -88,6 +88,16 @@ def build_datamodule(cfg: DictConfig, path: Path) -> DCMDataModule:
                          expect_control_hz=d.get("expect_control_hz"), n_eval=d.get("n_eval"))
 
 
+def init_checkpoint(cfg: DictConfig) -> Path:
+    """``init_from`` as an absolute path, refused unless it holds the selected model's kind."""
+    ckpt = Path(to_absolute_path(str(cfg.init_from)))
+    kind, selected = checkpoint_kind(ckpt), get_class(str(cfg.model._target_)).model_kind
+    if kind != selected:
+        raise CheckpointKindError(f"init_from={ckpt} holds a {kind!r} model but model={selected!r} "
+                                  f"was selected; pass model={kind}")
+    return ckpt
+
+
 def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
     """A fresh model (normaliser fitted on the training split), or one initialised from ``init_from``."""
     model_cfg: dict[str, Any] = OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[assignment]
@@ -96,11 +106,7 @@ def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
     if cfg.stage == "finetune" and not cfg.init_from:
         raise TrainConfigError("stage=finetune needs init_from=<checkpoint of the pre-trained model>")
     if cfg.init_from:
-        ckpt = Path(to_absolute_path(str(cfg.init_from)))
-        kind = checkpoint_kind(ckpt)
-        if kind != cls.model_kind:
-            raise CheckpointKindError(f"init_from={ckpt} holds a {kind!r} model but model={cls.model_kind!r} "
-                                      f"was selected; pass model={kind}")
+        ckpt = init_checkpoint(cfg)
         init = cls.load_from_checkpoint(ckpt)
         init.data_spec.check(dm.cond_channels, dm.target_channels, dm.control_hz, source=str(dm.path))
         hparams = dict(init.hparams)
@@ -142,9 +148,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     read_root_attrs(path)  # fail fast on a file that is not a dcm dataset
     if not resuming:
         cfg.data.path = str(path)
-        if cfg.init_from:
-            cfg.init_from = str(Path(to_absolute_path(str(cfg.init_from))))
-        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+        OmegaConf.save(OmegaConf.create(planned_config(cfg)), run_dir / "config.yaml")
 
     dm = build_datamodule(cfg, path)
     dm.setup("fit")
@@ -186,11 +190,23 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
 
 
 def planned_config(cfg: DictConfig) -> dict[str, Any]:
-    """The config train() will save in config.yaml (paths made absolute), without generating any dataset."""
+    """The config train() saves in config.yaml (paths made absolute), without generating any dataset.
+
+    A run from ``init_from`` records what it trains: every model field but FINETUNE_FIELDS, the net and the
+    noise schedule as the checkpoint holds them, not the command line's unused defaults.
+    """
     planned = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
     planned.data.path = str(Path(to_absolute_path(str(cfg.data.path))))
     if cfg.init_from:
-        planned.init_from = str(Path(to_absolute_path(str(cfg.init_from))))
+        planned.init_from = str(init_checkpoint(cfg))
+        hparams = read_checkpoint(planned.init_from).get("hyper_parameters") or {}
+        config_cls = get_class(str(cfg.model._target_)).config_cls
+        applied = config_cls.from_kwargs({k: v for k, v in hparams.items() if k != "data_spec"})
+        for key in planned.model:
+            if key != "_target_" and key not in FINETUNE_FIELDS and hasattr(applied, key):
+                planned.model[key] = getattr(applied, key)
+        planned.net = hparams.get("net", planned.net)
+        planned.schedule = hparams.get("schedule", planned.schedule)
     return OmegaConf.to_container(planned)  # type: ignore[return-value]
 
 
