@@ -73,3 +73,24 @@ def test_welch_test_known_answer() -> None:
     assert result["p"] == pytest.approx(0.021312, abs=1e-5) and result["difference"] == pytest.approx(-3.0)
     assert welch_test([1.0], [2.0, 3.0])["p"] is None  # one seed: no test
     assert welch_test([1.0, float("nan"), 1.0], [1.0, 1.0])["p"] is None  # NaN dropped; no spread: no test
+
+
+def test_usage_rate_study_fits_the_ridge_on_each_runs_own_training_subset(tiny_dataset_path: Path,
+                                                                           tmp_path: Path) -> None:
+    from dcm.data.datamodule import DCMDataModule
+
+    _run([str(REPO / "train.py"), "-m", "+experiment=usage_rate", "model=baseline", "usage_rate=0.5,1.0", "seed=3",
+          "data=path", f"data.path={tiny_dataset_path}", *TINY, f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+         cwd=tmp_path)
+    result = json.loads(study_main([str(tmp_path / "sweep"), "--out", str(tmp_path / "report")])["json"].read_text())
+    ridges = {c["values"]["usage_rate"]: c for c in result["cells"] if c["values"]["model"] == "stiffness_ridge"}
+    assert set(ridges) == {0.5, 1.0} and all(c["n_seeds"] == 1 for c in ridges.values())
+    fitted = json.loads((tmp_path / "sweep" / "ridge" / "usage_rate-0.5__seed-3" / "stiffness_ridge.json").read_text())
+    dm = DCMDataModule(tiny_dataset_path, usage_rate=0.5, seed=3)
+    dm.setup("fit")  # the subset the baseline trained on, and the one the ridge was fitted on
+    assert fitted["fit"]["n_trajectories"] == len(dm.split("train")) < dm.n_train_total
+    assert fitted["fit"]["subset"] == f"{len(dm.split('train'))} of {dm.n_train_total} trajectories"
+    md = (tmp_path / "report" / "study.md").read_text()
+    assert "| model=stiffness_ridge, usage_rate=0.5 | 1 |" in md and "each run's own training subset" in md
+    tests = [t for t in result["tests"] if t["cell"] == "model=stiffness_ridge, usage_rate=0.5"]
+    assert tests and all(t["against"] == "model=baseline, usage_rate=0.5" for t in tests)

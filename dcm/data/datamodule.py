@@ -86,6 +86,14 @@ class TrajectoryDataset(Dataset):
         return TrajectoryDataset(self.cond[:n].numpy(), self.target[:n].numpy(), self.names[:n], self.L_task[:n])
 
 
+def usage_index(n_total: int, usage_rate: float, seed: int) -> np.ndarray:
+    """Sorted indices of the seeded fraction ``usage_rate`` of ``n_total`` training trajectories (at least one):
+    the subset a run with this usage rate and seed trains on, so a reference can be fitted on the same one."""
+    n_use = max(1, int(round(float(usage_rate) * n_total)))
+    rng = np.random.default_rng(int(seed))
+    return np.sort(rng.choice(n_total, size=n_use, replace=False))
+
+
 class DCMDataModule(L.LightningDataModule):
     """Train/valid/test splits of one dataset file, taken from its masks.
 
@@ -144,9 +152,7 @@ class DCMDataModule(L.LightningDataModule):
 
     def usage_index(self, n_total: int) -> np.ndarray:
         """Sorted indices of the seeded usage-rate subset of ``n_total`` training trajectories."""
-        n_use = max(1, int(round(self.usage_rate * n_total)))
-        rng = np.random.default_rng(self.seed)
-        return np.sort(rng.choice(n_total, size=n_use, replace=False))
+        return usage_index(n_total, self.usage_rate, self.seed)
 
     def setup(self, stage: str | None = None) -> None:
         """Load the splits a Lightning stage needs (fit: train+valid; validate: valid; test: test)."""

@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from dcm.cli import flatten
+from dcm.model_study.matched_ridge import USAGE_RATE, matched_ridge_runs
 from dcm.model_study.runs import Run, StudyError, StudySpec, find_runs, init_runs, setting_keys, study_spec
 from dcm.model_study.stats import describe, welch_test
 from dcm.model_table import COLUMNS, cached_eval
@@ -168,7 +169,8 @@ def collect(sweep_dir: Path, splits: tuple[str, ...] = SPLITS) -> dict[str, Any]
         raise StudyError(f"{sweep_dir}: its runs used different datasets {datasets}; report one dataset per sweep")
     dataset = Path(datasets[0])
     keys = setting_keys(spec, finished)
-    scored = finished + (init_runs(finished, sweep_dir) if spec.evaluate_init else [])
+    scored = (finished + (init_runs(finished, sweep_dir) if spec.evaluate_init else [])
+              + (matched_ridge_runs(finished, sweep_dir) if USAGE_RATE in keys else []))
     cells = make_cells(scored, keys, spec)
     use_splits = dataset_splits(dataset, splits)
     if not use_splits:

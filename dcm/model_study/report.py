@@ -9,6 +9,8 @@ from typing import Any
 
 import yaml
 
+from dcm.models.references import STIFFNESS_RIDGE
+
 LABELS = {"L_MSE": "L_MSE (normalised)", "force_rmse_N": "force RMSE [N]", "force_rmse_ratio_copy": "÷ copy-F_demo",
           "R_within": "R within skill", "R_within_spearman": "Spearman within", "R_pooled": "R pooled",
           "L_task_mae_N": "L_task MAE [N]"}
@@ -55,6 +57,9 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
     if spec.get("evaluate_init"):
         lines.append("- `stage=pretrain` rows: the runs' `init_from` checkpoints scored as they are (no fine-tuning); "
                      "n counts distinct checkpoints.")
+    if any(c["values"].get("model") == STIFFNESS_RIDGE for c in study["cells"]):
+        lines.append(f"- `model={STIFFNESS_RIDGE}` rows: the stiffness-only ridge fitted on each run's own training "
+                     "subset (the same usage rate and seed), so it sees exactly the data the models saw.")
     if study["unfinished"]:
         lines.append(f"- Left out, unfinished (no summary.json): {', '.join(f'`{p}`' for p in study['unfinished'])}.")
     for split, info in study["splits"].items():
@@ -63,7 +68,7 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
                   "|---|---|" + "---|" * len(metrics)]
         for cell in study["cells"]:
             summary = cell["summary"][split]
-            lines.append(f"| {cell['label']} | {summary[metrics[0]]['n']} | "
+            lines.append(f"| {cell['label']} | {cell['n_seeds']} | "
                          + " | ".join(_cell_text(summary[m]) for m in metrics) + " |")
         for name, ref in study["references"].get(split, {}).items():
             values = [f"{ref[m]:.3f}" if _num(ref.get(m)) is not None else "–" for m in metrics]

@@ -149,18 +149,22 @@ class StiffnessRegression:
 
     @classmethod
     def fit_dataset(cls, path: str | Path, split: str = "train", alpha: float | None = None,
-                    n_phases: int | None = None) -> "StiffnessRegression":
-        """Fit on ``split`` of a dataset file, grouped by ``demo_id``; L_task from its F_obs and F_demo."""
+                    n_phases: int | None = None, index: np.ndarray | None = None) -> "StiffnessRegression":
+        """Fit on ``split`` of a dataset file (only its trajectories ``index``, if given), grouped by
+        ``demo_id``; L_task from its F_obs and F_demo."""
         from dcm.data.schema import load_dataset
 
         loaded = load_dataset(path, split=split)
         P = int(n_phases) if n_phases is not None else dataset_phases(loaded)
-        L = np.asarray(task_loss(loaded.arrays["F_obs"].astype(np.float64),
-                                 loaded.arrays["F_demo"].astype(np.float64)))
+        rows = slice(None) if index is None else np.asarray(index)
+        L = np.asarray(task_loss(loaded.arrays["F_obs"][rows].astype(np.float64),
+                                 loaded.arrays["F_demo"][rows].astype(np.float64)))
         info = {"dataset": _dataset_identity(Path(path), loaded.attrs), "split": split, "group_key": GROUP_KEY,
                 "phase_method": _phase_method(loaded.attrs)}
+        if index is not None:
+            info["subset"] = f"{len(L)} of {len(loaded)} trajectories"
         try:
-            return cls.fit(loaded.arrays["K"], L, loaded.demo_ids, P, loaded.control_hz, alpha, info)
+            return cls.fit(loaded.arrays["K"][rows], L, loaded.demo_ids[rows], P, loaded.control_hz, alpha, info)
         except ValueError as err:
             raise ReferenceError(f"dataset {path}, split {split}: {err}") from None
 
