@@ -11,8 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from dcm.cli import load_json
 from dcm.data.datamodule import usage_index
-from dcm.data.schema import load_dataset
 from dcm.model_study.runs import Run
 from dcm.models.references import STIFFNESS_RIDGE, StiffnessRegression
 
@@ -22,19 +22,16 @@ USAGE_RATE = "usage_rate"  # the setting key that turns the matched ridge on
 def matched_ridge_runs(runs: list[Run], sweep_dir: Path) -> list[Run]:
     """One ridge per distinct (usage_rate, seed) of the finished ``runs``, as runs to score."""
     out: dict[tuple[float, int], Run] = {}
-    n_train: dict[Path, int] = {}
     for run in runs:
         rate, seed = float(run.config.get(USAGE_RATE, 1.0)), int(run.seed)
         if not run.finished or (rate, seed) in out:
             continue
-        dataset = run.dataset
         folder = sweep_dir / "ridge" / f"usage_rate-{rate}__seed-{seed}"
         ckpt = folder / f"{STIFFNESS_RIDGE}.json"
         if not ckpt.is_file():  # fitting is deterministic: a saved one is the same ridge
-            if dataset not in n_train:
-                n_train[dataset] = len(load_dataset(dataset, split="train"))
-            index = usage_index(n_train[dataset], rate, seed)
-            StiffnessRegression.fit_dataset(dataset, "train", index=index).save(ckpt)
+            n_train = int(load_json(run.path / "summary.json")["n_train_total"])  # the run's train split size
+            index = usage_index(n_train, rate, seed)
+            StiffnessRegression.fit_dataset(run.dataset, "train", index=index).save(ckpt)
         (folder / "summary.json").write_text(json.dumps({"best_checkpoint": str(ckpt), "model": STIFFNESS_RIDGE,
                                                          USAGE_RATE: rate, "seed": seed}, indent=2) + "\n")
         config = {USAGE_RATE: rate, "seed": seed, "data": run.config["data"]}
