@@ -236,3 +236,14 @@ def test_workers_die_with_a_killed_parent(tmp_path: Path) -> None:
             if _alive(pid):
                 os.kill(pid, signal.SIGKILL)
         proc.communicate()
+
+
+def test_demo_lead_reaches_every_spec_only_when_set() -> None:
+    from dcm.data.presets import PresetError, plan_demos
+
+    preset = {"name": "p", "skills": [{"name": "spiral", "split": "train", "n_trials": 2,
+                                       "spec": {"family": "spiral", "press_m": 0.01}}]}
+    assert "lead" not in plan_demos(preset, 0)[0].spec
+    assert plan_demos({**preset, "demo_lead": True}, 0)[0].spec["lead"] is True
+    with pytest.raises(PresetError, match="demo_lead = 'yes'"):
+        plan_demos({**preset, "demo_lead": "yes"}, 0)

@@ -212,3 +212,28 @@ def test_short_curve_demo_records_on_the_tool() -> None:
     assert np.all(np.isfinite(demo.force_demo)) and demo.contact[15:].all()
     assert np.abs(demo.x_demo[15:, :2] - spec.path()[15:, :2]).max() < 0.01  # follows the curve
     assert demo.force_demo[15:, 2].mean() > 1.0  # pressing down
+
+
+# -- the leading demonstrator ------------------------------------------------------------------------------
+def test_lead_is_serialised_only_when_set_and_checked() -> None:
+    plain = DemoSpec(family="spiral")
+    assert "lead" not in plain.to_dict()  # specs from before the field keep their JSON (and their demo seeds)
+    led = DemoSpec.from_dict({**plain.to_dict(), "lead": True})
+    assert led.lead and led.to_dict()["lead"] is True and DemoSpec.from_dict(led.to_dict()) == led
+    with pytest.raises(DemoSpecError, match="lead = 'yes'"):
+        DemoSpec(lead="yes")
+
+
+def test_leading_demonstrator_follows_the_path_closer_on_the_panda() -> None:
+    """A fast spiral on a small bowl: the plain demo controller trails the path by centimetres; leading by the
+    impedance lag keeps the tool within millimetres of it."""
+    from dcm.sim.rollout import Simulator
+
+    bowl = BowlSpec(rim_radius_m=0.10, depth_m=0.05, hfield_res=64)
+    sim = Simulator(embodiment="panda", bowl=bowl, control_hz=20.0, seed=0)
+    trail = {}
+    for lead in (False, True):
+        spec = DemoSpec(family="spiral", params={"turns": 2.5}, press_m=0.01, duration_s=6.0, bowl=bowl, lead=lead)
+        demo = sim.record_demo(spec)
+        trail[lead] = np.linalg.norm(demo.x_demo[30:, :2] - spec.path(20.0)[30:, :2], axis=1).mean()
+    assert trail[False] > 0.015 and trail[True] < 0.3 * trail[False]

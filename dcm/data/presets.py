@@ -115,6 +115,11 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
     demo indices and seeds are those of the full plan, so the kept demos are identical to the full run's.
     """
     defaults = {"duration_s": dataset.get("duration_s", 8.0), "bowl": dict(dataset.get("bowl", {}))}
+    demo_lead = dataset.get("demo_lead", False)
+    if not isinstance(demo_lead, bool):
+        raise PresetError(f"dataset {dataset.get('name')!r}: demo_lead = {demo_lead!r} must be true or false")
+    if demo_lead:  # only when set: the specs of presets without it stay byte-identical
+        defaults["lead"] = True
     groups: list[tuple[str, str, int, list[dict[str, Any]]]] = []
     if waypoints is not None and waypoints.get("waypoints"):
         spec = {"family": "waypoints", "waypoints": str(Path(str(waypoints["waypoints"])).expanduser().resolve()), "bowl": dict(waypoints["bowl"])}

@@ -154,6 +154,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--max-skills", type=int, default=None, help="first N skills of the chosen splits")
     parser.add_argument("--n-random", type=int, default=20)
     parser.add_argument("--duration", type=float, default=None, help="override the demos' duration [s]")
+    parser.add_argument("--demo-lead", action="store_true", help="record the demos with a leading demonstrator")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="reports/task_check")
     args = parser.parse_args(argv)
@@ -164,6 +165,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     preset = OmegaConf.to_container(OmegaConf.load(preset_file), resolve=True)
     if args.duration is not None:
         preset["duration_s"] = args.duration
+    if args.demo_lead:
+        preset["demo_lead"] = True
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     jobs = [j for j in plan_demos(preset, args.seed) if j.trial_splits[0] in args.splits]
     if args.max_skills:
@@ -183,6 +186,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                    damping=args.damping)}
         skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims[key], spec, args.n_random, space, rng)
     result = {"dataset": args.dataset, "splits": args.splits, "embodiment": embodiment, "damping": args.damping,
+              "duration_s": preset.get("duration_s", 8.0), "demo_lead": bool(preset.get("demo_lead", False)),
               "seconds": time.perf_counter() - start, "summary": summarise(skills), "skills": skills}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

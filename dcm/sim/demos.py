@@ -172,6 +172,9 @@ class DemoSpec:
     approach_s: float = 1.0
     hover_m: float = 0.01
     name: str = ""
+    # The demonstrator leads the tool by the impedance lag (``Simulator.record_demo``), as a person guiding
+    # the arm puts the tool where they mean it; without it the demo controller trails the path.
+    lead: bool = False
     # Where the spec came from, used in error messages; not serialised and not compared.
     source: str = field(default="DemoSpec", compare=False, repr=False)
 
@@ -210,6 +213,8 @@ class DemoSpec:
             raise DemoSpecError(f"{where}: approach_s = {self.approach_s} must be shorter than duration_s = {self.duration_s}")
         if len(self.stiffness_Npm) != 3 or not all(50.0 <= k <= 3000.0 for k in self.stiffness_Npm):
             raise DemoSpecError(f"{where}: stiffness_Npm = {self.stiffness_Npm} needs 3 values in [50, 3000] N/m")
+        if not isinstance(self.lead, bool):
+            raise DemoSpecError(f"{where}: lead = {self.lead!r} must be true or false")
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -223,6 +228,8 @@ class DemoSpec:
             "stiffness_Npm": list(self.stiffness_Npm),
             "waypoints": self.waypoints,
             "bowl": self.bowl.to_dict(),
+            # Written only when set, so specs (and the demos seeded from their JSON) from before it stay identical.
+            **({"lead": True} if self.lead else {}),
         }
 
     def to_json(self) -> str:
@@ -233,7 +240,7 @@ class DemoSpec:
         if not isinstance(data, dict):
             raise DemoSpecError(f"{where}: expected a mapping, got {type(data).__name__}")
         allowed = {"name", "family", "params", "press_m", "duration_s", "approach_s", "hover_m",
-                   "stiffness_Npm", "waypoints", "bowl"}
+                   "stiffness_Npm", "waypoints", "bowl", "lead"}
         extra = set(data) - allowed
         if extra:
             raise DemoSpecError(f"{where}: unknown field(s) {sorted(extra)}; known: {sorted(allowed)}")

@@ -151,7 +151,8 @@ class Simulator:
         self.embodiment_name = embodiment
         self._cls = embodiment_class(embodiment)
         try:
-            self.damping_mass = damping_mass(damping, getattr(self._cls, "apparent_mass", np.ones(6)))
+            self.apparent_mass = np.asarray(getattr(self._cls, "apparent_mass", np.ones(6)), dtype=np.float64)
+            self.damping_mass = damping_mass(damping, self.apparent_mass)
         except ValueError as err:
             raise SimulatorError(str(err)) from err
         self.damping = damping
@@ -181,9 +182,19 @@ class Simulator:
 
     # -- public API ------------------------------------------------------------------------------
     def record_demo(self, spec: DemoSpec) -> Demo:
-        """Execute ``spec`` with the demonstration controller and record (x_demo, force_demo)."""
+        """Execute ``spec`` with the demonstration controller and record (x_demo, force_demo).
+
+        With ``spec.lead`` the demonstrator's attractor runs ahead of the path by ``K⁻¹(D ẋ + m ẍ)``, with
+        the controller's damping and the embodiment's apparent mass ``m``, so the tool follows the path
+        instead of trailing it (at 0.18 m/s and 800 N/m the trailing tool is ~4 cm behind and skims off
+        the wall of a small bowl). Rollouts keep the paper's attractor, whose inertia term this embodiment
+        does not know (``attractor_inertia_kg``).
+        """
         attractor = spec.attractor_path(self.control_hz)
         stiffness = np.tile(np.r_[spec.stiffness_Npm, 20.0, 20.0, 20.0], (len(attractor), 1))
+        if spec.lead:
+            attractor = attractor_from_demo(attractor, np.zeros_like(attractor), stiffness, self.dt,
+                                            inertia=self.apparent_mass, mass=self.damping_mass)
         start = spec.start_pose(self.control_hz)
         emb = self.embodiment_for(spec.bowl)
         run = self._execute(emb, spec.bowl, start, attractor, stiffness, self._rng("demo", spec.to_json()))
