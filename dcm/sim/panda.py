@@ -114,8 +114,8 @@ class PandaEmbodiment:
     # tests/test_sim_panda.py checks these values against the model.
     apparent_mass = (10.0, 10.0, 10.0, 2.0, 0.9, 0.2)
     # No ``attractor_inertia_kg``: the rollout attractor leaves out Λ ẍ_demo, as a controller that does not
-    # know the arm's inertia. With it (10 kg) the arm tracks the demo at any stiffness and L_task(100 N/m)
-    # / L_task(2,500 N/m) falls to 1.1-1.2 on the valid spirals: no trade-off left to tune.
+    # know the arm's inertia. With it (10 kg) the arm tracks the demo at any stiffness: L_task(100 N/m) /
+    # L_task(2,500 N/m) falls to 1.1-1.2 on sim_contact's valid spirals, no trade-off left to tune (README).
 
     def __init__(
         self,
