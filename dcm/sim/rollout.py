@@ -186,7 +186,7 @@ class Simulator:
 
         With ``spec.lead`` the demonstrator's attractor runs ahead of the path by ``K⁻¹(D ẋ + m ẍ)``, with
         the controller's damping and the embodiment's apparent mass ``m``, so the tool follows the path
-        instead of trailing it (at 0.18 m/s and 800 N/m the trailing tool is ~4 cm behind and skims off
+        instead of trailing it (on `sim`'s fast spirals, 0.21-0.37 m/s at 800 N/m, the trailing tool is 4-7 cm behind and skims off
         the wall of a small bowl). Rollouts keep the paper's attractor, whose inertia term this embodiment
         does not know (``attractor_inertia_kg``).
         """
