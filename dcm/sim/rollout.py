@@ -186,9 +186,9 @@ class Simulator:
 
         With ``spec.lead`` the demonstrator's attractor runs ahead of the path by ``K⁻¹(D ẋ + m ẍ)``, with
         the controller's damping and the embodiment's apparent mass ``m``, so the tool follows the path
-        instead of trailing it (on `sim`'s fast spirals, 0.21-0.37 m/s at 800 N/m, the trailing tool is 4-7 cm behind and skims off
-        the wall of a small bowl). Rollouts keep the paper's attractor, whose inertia term this embodiment
-        does not know (``attractor_inertia_kg``).
+        instead of trailing it (on ``sim``'s fast spirals, 0.21-0.37 m/s at 800 N/m, the trailing tool is
+        4-7 cm behind and skims off the bowl wall). Rollouts keep the paper's attractor, whose inertia term
+        this embodiment does not know (``attractor_inertia_kg``).
         """
         attractor = spec.attractor_path(self.control_hz)
         stiffness = np.tile(np.r_[spec.stiffness_Npm, 20.0, 20.0, 20.0], (len(attractor), 1))
