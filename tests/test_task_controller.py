@@ -72,13 +72,14 @@ def test_phase_additivity_known_answers() -> None:
 
 
 def test_task_check_on_one_skill(tmp_path) -> None:
-    """At small scale on one tiny skill (the Panda, 2 s): a constant 'schedule' adds up to 1, stiffer tracks
-    better, and the report is written."""
+    """At small scale on one tiny skill (the Panda, 2 s, a leading demonstrator): a constant 'schedule' adds
+    up to 1, stiffer tracks better, and the report is written."""
     out = tmp_path / "tc"
     result = task_check.main(["--dataset", "tiny", "--splits", "valid", "--max-skills", "1", "--n-random", "4",
-                              "--embodiment", "panda", "--out", str(out)])
+                              "--embodiment", "panda", "--demo-lead", "--out", str(out)])
     assert (out / "task_check.png").is_file()
     saved = json.loads((out / "task_check.json").read_text())
+    assert saved["demo_lead"] is True and saved["duration_s"] == 2.0
     (skill,) = saved["skills"].values()
     assert skill["sweep_L_task"][0] > skill["sweep_L_task"][-1]  # 100 N/m tracks worse than 2,500 N/m
     assert len(skill["random_L_task"]) == 4
