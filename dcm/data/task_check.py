@@ -141,6 +141,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from omegaconf import OmegaConf
     from tqdm import tqdm
 
+    from dcm.data.generate import compose_config
     from dcm.data.presets import plan_demos
     from dcm.sim.demos import DemoSpec
     from dcm.sim.domain import DomainSpec
@@ -162,7 +163,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     preset_file = CONF_DIR / "dataset" / f"{args.dataset}.yaml"
     if not preset_file.is_file():
         parser.error(f"--dataset {args.dataset!r}: no preset file {preset_file}")
-    preset = OmegaConf.to_container(OmegaConf.load(preset_file), resolve=True)
+    preset = OmegaConf.to_container(compose_config(args.dataset).dataset, resolve=True)  # as generation sees it
     if args.duration is not None:
         preset["duration_s"] = args.duration
     if args.demo_lead:
