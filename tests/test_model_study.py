@@ -94,3 +94,13 @@ def test_usage_rate_study_fits_the_ridge_on_each_runs_own_training_subset(tiny_d
     assert "| model=stiffness_ridge, usage_rate=0.5 | 1 |" in md and "each run's own training subset" in md
     tests = [t for t in result["tests"] if t["cell"] == "model=stiffness_ridge, usage_rate=0.5"]
     assert tests and all(t["against"] == "model=baseline, usage_rate=0.5" for t in tests)
+
+
+def test_small_values_keep_their_digits_in_the_report() -> None:
+    """A normalised L_MSE of ~1e-3 must not print as 0.001 ± 0.000 for every setting."""
+    from dcm.model_study.report import _cell_text
+
+    small = {"n": 3, "mean": 1.234e-3, "std": 5.6e-5, "min": 1.17e-3, "max": 1.3e-3}
+    assert _cell_text(small) == "1.23e-03 ± 5.60e-05 [1.17e-03–1.30e-03]"
+    assert _cell_text({"n": 3, "mean": 0.8456, "std": 0.02, "min": 0.82, "max": 0.87}) == "0.846 ± 0.020 [0.820–0.870]"
+    assert _cell_text({"n": 1, "mean": 0.0}) == "0.000"

@@ -25,14 +25,19 @@ def _num(value: Any) -> float | None:
     return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
 
 
+def _fmt(value: float, sign: str = "") -> str:
+    """Three decimals; values below 0.01 (a normalised L_MSE) in three significant digits, so they stay visible."""
+    return format(value, f"{sign}.3f") if value == 0 or abs(value) >= 0.01 else format(value, f"{sign}.2e")
+
+
 def _cell_text(summary: dict[str, Any]) -> str:
     """mean ± std [min–max] over the seeds (one value when there is one seed)."""
     n, mean = summary["n"], _num(summary.get("mean"))
     if not n or mean is None:
         return "–"
     if n == 1:
-        return f"{mean:.3f}"
-    return f"{mean:.3f} ± {summary['std']:.3f} [{summary['min']:.3f}–{summary['max']:.3f}]"
+        return _fmt(mean)
+    return f"{_fmt(mean)} ± {_fmt(summary['std'])} [{_fmt(summary['min'])}–{_fmt(summary['max'])}]"
 
 
 def _p_text(p: float | None) -> str:
@@ -71,7 +76,7 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
             lines.append(f"| {cell['label']} | {cell['n_seeds']} | "
                          + " | ".join(_cell_text(summary[m]) for m in metrics) + " |")
         for name, ref in study["references"].get(split, {}).items():
-            values = [f"{ref[m]:.3f}" if _num(ref.get(m)) is not None else "–" for m in metrics]
+            values = [_fmt(ref[m]) if _num(ref.get(m)) is not None else "–" for m in metrics]
             lines.append(f"| {name} | – | " + " | ".join(values) + " |")
     if study["tests"]:
         lines += ["", f"## Significance (Welch's t-test, two-sided; bold: p < {ALPHA})", "",
@@ -80,7 +85,7 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
         for t in study["tests"]:
             diff, stat = _num(t["difference"]), _num(t["t"])
             lines.append(f"| {t['split']} | {t['metric']} | {t['cell']} | {t['against']} | "
-                         f"{'–' if diff is None else format(diff, '+.3f')} | {t['n']} / {t['n_against']} | "
+                         f"{'–' if diff is None else _fmt(diff, '+')} | {t['n']} / {t['n_against']} | "
                          f"{'–' if stat is None else format(stat, '.2f')} | {_p_text(t['p'])} |")
     common = study["common_config"]
     lines += ["", "<details><summary>Resolved config shared by every run</summary>", "", "```yaml",
