@@ -9,7 +9,8 @@ by :func:`dcm.evaluate.evaluate` on each split; the result is cached next to the
 seeds and the range; the interval column gives the bootstrap 90 % interval of R within skill (trials
 resampled within skills, median bounds over seeds), which says how much the split's trials can tell. The
 references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's train split) come from the
-same evaluations, so they sit on exactly the trajectories the models were scored on.
+same evaluations, so they sit on exactly the trajectories the models were scored on. Below the table, a Welch
+t-test over seeds compares every other model with the first (R within skill and force RMSE, per split).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from dcm.model_study.stats import welch_test
 from dcm.models.export import run_checkpoint
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
@@ -83,6 +85,27 @@ def table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: list[str]) -
     return "\n".join(lines)
 
 
+def significance(rows: dict[str, dict[str, list[dict[str, Any]]]], models: list[str], splits: list[str]) -> str:
+    """Markdown: a Welch t-test over seeds of every model after the first against the first, per split."""
+    if len(models) < 2:
+        return ""
+    first = models[0]
+    lines = [f"Welch t-test over seeds against {first} (two-sided p; difference of means, model − {first}):", "",
+             "| model | split | R within: difference | R within: p | force RMSE [N]: difference | force RMSE: p |",
+             "|---|---|---|---|---|---|"]
+    for label in models[1:]:
+        for split in splits:
+            cells = [label, split]
+            for key in ("R_within", "force_rmse_N"):
+                test = welch_test([r.get(key) for r in rows[label].get(split, [])],
+                                  [r.get(key) for r in rows[first].get(split, [])])
+                diff = test["difference"]
+                cells += [f"{diff:+.3f}" if np.isfinite(diff) else "–",
+                          f"{test['p']:.2f}" if test["p"] is not None else "– (needs 2 seeds each)"]
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def collect(runs: dict[str, list[Path]], dataset: Path, splits: list[str], tag: str = "",
             **overrides: Any) -> dict[str, dict[str, list[dict[str, Any]]]]:
     """Evaluations per model label and split, plus the two reference rows from the first run's evaluation."""
@@ -131,7 +154,11 @@ def main(argv: list[str] | None = None) -> str:
     if args.reference:
         overrides["reference"] = args.reference
         tag = "_".join(filter(None, [tag, "ref-" + Path(args.reference).stem]))
-    text = table(collect(runs, args.dataset, args.splits, tag, **overrides), args.splits)
+    rows = collect(runs, args.dataset, args.splits, tag, **overrides)
+    text = table(rows, args.splits)
+    tests = significance(rows, list(runs), args.splits)
+    if tests:
+        text += "\n\n" + tests
     header = (f"Dataset `{args.dataset}`; median [range] over seeds; checkpoints selected on val/R_within. "
               f"Command: `python -m dcm.model_table {shlex.join(argv)}`")
     if args.out:
