@@ -34,7 +34,7 @@ def test_significance_compares_every_model_with_the_first() -> None:
     p = ttest_ind([r["R_within"] for r in base], [r["R_within"] for r in dcm], equal_var=False).pvalue
     line = next(row for row in text.splitlines() if row.startswith("| baseline | valid |"))
     assert line.split(" | ")[2] == "+0.093"  # baseline − DCM, means
-    assert line.split(" | ")[3] == f"{p:.2f}"
+    assert line.split(" | ")[3] == f"{p:.2g}"
     assert significance(rows, ["DCM"], ["valid"]) == ""  # one model: nothing to compare
     one_seed = {"DCM": {"valid": dcm[:1]}, "baseline": {"valid": base}}
     assert "needs 2 seeds each" in significance(one_seed, ["DCM", "baseline"], ["valid"])
