@@ -101,7 +101,7 @@ def significance(rows: dict[str, dict[str, list[dict[str, Any]]]], models: list[
                                   [r.get(key) for r in rows[first].get(split, [])])
                 diff = test["difference"]
                 cells += [f"{diff:+.3f}" if np.isfinite(diff) else "–",
-                          f"{test['p']:.2g}" if test["p"] is not None else "– (needs 2 seeds each)"]
+                          f"{test['p']:.2g}" if test["p"] is not None else "– (needs ≥ 2 seeds each, with spread)"]
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
