@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.model_study.stats import welch_test
+from dcm.model_study.stats import ALPHA, p_text, welch_test
 from dcm.models.export import run_checkpoint
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
@@ -90,7 +90,8 @@ def significance(rows: dict[str, dict[str, list[dict[str, Any]]]], models: list[
     if len(models) < 2:
         return ""
     first = models[0]
-    lines = [f"Welch t-test over seeds against {first} (two-sided p; difference of means, model − {first}):", "",
+    lines = [f"Welch t-test over seeds against {first} (two-sided p, bold below {ALPHA}; difference of means, "
+             f"model − {first}):", "",
              "| model | split | R within: difference | R within: p | force RMSE [N]: difference | force RMSE: p |",
              "|---|---|---|---|---|---|"]
     for label in models[1:]:
@@ -100,8 +101,7 @@ def significance(rows: dict[str, dict[str, list[dict[str, Any]]]], models: list[
                 test = welch_test([r.get(key) for r in rows[label].get(split, [])],
                                   [r.get(key) for r in rows[first].get(split, [])])
                 diff = test["difference"]
-                cells += [f"{diff:+.3f}" if np.isfinite(diff) else "–",
-                          f"{test['p']:.2g}" if test["p"] is not None else "– (needs ≥ 2 seeds each, with spread)"]
+                cells += [f"{diff:+.3f}" if np.isfinite(diff) else "–", p_text(test["p"])]
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

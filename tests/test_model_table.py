@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from dcm.model_study.stats import p_text
 from dcm.model_table import cell, significance, table
 
 
@@ -34,7 +35,7 @@ def test_significance_compares_every_model_with_the_first() -> None:
     p = ttest_ind([r["R_within"] for r in base], [r["R_within"] for r in dcm], equal_var=False).pvalue
     line = next(row for row in text.splitlines() if row.startswith("| baseline | valid |"))
     assert line.split(" | ")[2] == "+0.093"  # baseline − DCM, means
-    assert line.split(" | ")[3] == f"{p:.2g}"
+    assert line.split(" | ")[3] == p_text(p)
     assert significance(rows, ["DCM"], ["valid"]) == ""  # one model: nothing to compare
     one_seed = {"DCM": {"valid": dcm[:1]}, "baseline": {"valid": base}}
-    assert "needs ≥ 2 seeds each" in significance(one_seed, ["DCM", "baseline"], ["valid"])
+    assert "– (n < 2 or no spread)" in significance(one_seed, ["DCM", "baseline"], ["valid"])

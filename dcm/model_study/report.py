@@ -9,6 +9,7 @@ from typing import Any
 
 import yaml
 
+from dcm.model_study.stats import ALPHA, p_text
 from dcm.models.references import STIFFNESS_RIDGE
 
 LABELS = {"L_MSE": "L_MSE (normalised)", "force_rmse_N": "force RMSE [N]", "force_rmse_ratio_copy": "÷ copy-F_demo",
@@ -18,7 +19,6 @@ LABELS = {"L_MSE": "L_MSE (normalised)", "force_rmse_N": "force RMSE [N]", "forc
 REFERENCE_OF = {"force_rmse_N": "copy-F_demo", "force_rmse_ratio_copy": "copy-F_demo", "R_within": "stiffness-only ridge",
                 "R_within_spearman": "stiffness-only ridge", "R_pooled": "stiffness-only ridge",
                 "L_task_mae_N": "stiffness-only ridge"}
-ALPHA = 0.05
 
 
 def _num(value: Any) -> float | None:
@@ -38,12 +38,6 @@ def _cell_text(summary: dict[str, Any]) -> str:
     if n == 1:
         return _fmt(mean)
     return f"{_fmt(mean)} ± {_fmt(summary['std'])} [{_fmt(summary['min'])}–{_fmt(summary['max'])}]"
-
-
-def _p_text(p: float | None) -> str:
-    if p is None:
-        return "– (n < 2 or no spread)"
-    return f"**{p:.3g}**" if p < ALPHA else f"{p:.3g}"
 
 
 def markdown(study: dict[str, Any], report_command: str) -> str:
@@ -86,7 +80,7 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
             diff, stat = _num(t["difference"]), _num(t["t"])
             lines.append(f"| {t['split']} | {t['metric']} | {t['cell']} | {t['against']} | "
                          f"{'–' if diff is None else _fmt(diff, '+')} | {t['n']} / {t['n_against']} | "
-                         f"{'–' if stat is None else format(stat, '.2f')} | {_p_text(t['p'])} |")
+                         f"{'–' if stat is None else format(stat, '.2f')} | {p_text(t['p'])} |")
     common = study["common_config"]
     lines += ["", "<details><summary>Resolved config shared by every run</summary>", "", "```yaml",
               yaml.safe_dump(common, sort_keys=True, width=120).rstrip(), "```", "", "</details>", ""]

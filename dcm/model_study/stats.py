@@ -14,6 +14,8 @@ import numpy as np
 
 from dcm.tuning.study_stats import summarize
 
+ALPHA = 0.05  # significance level: p below it is printed in bold
+
 
 def finite(values: Sequence[float | None]) -> np.ndarray:
     """The finite values as float64 (None and NaN dropped)."""
@@ -51,3 +53,10 @@ def welch_test(first: Sequence[float | None], second: Sequence[float | None]) ->
     df = (va + vb) ** 2 / (va**2 / (len(a) - 1) + vb**2 / (len(b) - 1))
     result.update(t=float(test.statistic), df=float(df), p=float(test.pvalue))
     return result
+
+
+def p_text(p: float | None) -> str:
+    """A test's p for a Markdown table: three significant digits, bold below :data:`ALPHA`."""
+    if p is None:
+        return "– (n < 2 or no spread)"
+    return f"**{p:.3g}**" if p < ALPHA else f"{p:.3g}"
