@@ -192,6 +192,14 @@ def test_diverse_preset_plan() -> None:
         {(s["bowl"]["rim_radius_m"], s["bowl"]["depth_m"]) for s in sim_spirals}  # the same 20 bowls
 
 
+def test_diverse_contact_is_diverse_recorded_at_12_s_with_the_lead() -> None:
+    diverse, contact = _plan("diverse"), _plan("diverse_contact")
+    assert [(j.skill, j.trial_splits, j.n_trials) for j in contact] == \
+        [(j.skill, j.trial_splits, j.n_trials) for j in diverse]
+    for d, c in zip(diverse, contact):
+        assert c.spec == {**d.spec, "duration_s": 12.0, "lead": True}
+
+
 def test_preset_axes_zip_and_enumerate_are_checked() -> None:
     from dcm.data.presets import PresetError, expand_skill
 
