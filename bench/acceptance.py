@@ -1,16 +1,20 @@
 """Acceptance of the shipped predictors on skills they never trained on, beside the references.
 
-    python -m dcm.data.generate dataset=acceptance        # once: data/acceptance.h5 (80 trials, ~45 s)
-    python bench/acceptance.py [--models models] [--datasets data/sim.h5:test data/acceptance.h5:test]
+    make acceptance                                       # generates the files below once, then runs this script
+    python bench/acceptance.py [--models models] [--datasets data/test_wavelike.h5:test ...]
 
 For each dataset split it scores every shipped force model (with its own sampler, and with DDIM-5, which is
-what tune.py uses), every shipped stiffness ridge, and copy-F_demo, and writes reports/acceptance.md. The
-target is the DCM's within-skill R >= 0.85; the script prints whether it is met and never fails on it.
+what tune.py uses), every shipped stiffness ridge, and copy-F_demo, and writes reports/acceptance.md. A
+predictor is scored only on files whose demos were recorded as its training demos were (duration, leading
+demonstrator: the preset its card names); one trained on a dataset without a preset in conf/dataset is
+scored on every file. The target is the DCM's within-skill R >= 0.85; the script prints whether it is met
+and never fails on it.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import sys
 import time
@@ -19,11 +23,47 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+import h5py  # noqa: E402
+import yaml  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
+
 from dcm.evaluate import evaluate  # noqa: E402
 from dcm.model_table import INTERVAL, cell, interval_cell  # noqa: E402
 from dcm.models.export import checkpoint_card  # noqa: E402
 
 TARGET_R_WITHIN = 0.85
+DATASETS = ("data/test_wavelike.h5:test", "data/acceptance.h5:test",  # 8 s demos (the *_sim, *_diverse files)
+            "data/test_wavelike_contact.h5:test", "data/test_line_contact.h5:test",  # 12 s, leading demonstrator
+            "data/acceptance_contact.h5:test")
+Recording = tuple[float, bool]  # (demo duration in s, leading demonstrator)
+
+
+def recording(dataset_config: dict) -> Recording:
+    """How a dataset preset records its demos (the DemoSpec defaults where it says nothing)."""
+    return float(dataset_config.get("duration_s", 8.0)), bool(dataset_config.get("demo_lead", False))
+
+
+def file_recording(path: Path) -> Recording:
+    """The recording of a generated dataset, from the config stored in its root attributes."""
+    with h5py.File(path, "r") as f:
+        return recording(yaml.safe_load(f.attrs["config"])["dataset"])
+
+
+def preset_recording(name: str | None) -> Recording | None:
+    """The recording of the preset ``conf/dataset/<name>.yaml`` (None if there is none)."""
+    if not name or not (REPO / "conf" / "dataset" / f"{name}.yaml").is_file():
+        return None
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        return recording(compose("generate", overrides=[f"dataset={name}"]).dataset)
+
+
+def trained_recording(path: Path) -> Recording | None:
+    """The recording of the data a shipped checkpoint or ridge was trained on (None if unknown)."""
+    if path.suffix == ".json":
+        name = json.loads(path.read_text())["fit"]["dataset"]["attrs"].get("dataset")
+    else:
+        name = (checkpoint_card(path).get("dataset") or {}).get("dataset")
+    return preset_recording(name)
 COLUMNS = ("R_within", INTERVAL, "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
 
 
@@ -33,10 +73,15 @@ def _cells(row: dict) -> str:
 
 def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str], dict[str, float]]:
     """Markdown rows for one dataset split, and each pre-trained DCM's R within skill per sampler."""
-    ridges = sorted(models.glob("stiffness_ridge_*.json"))
+    here = file_recording(dataset)
+
+    def matching(paths: list[Path]) -> list[Path]:
+        return [p for p in paths if trained_recording(p) in (here, None)]
+
+    ridges = matching(sorted(models.glob("stiffness_ridge_*.json")))
     rows, dcm_scores = [], {}
     result = None
-    for ckpt in sorted(models.glob("*.ckpt")):
+    for ckpt in matching(sorted(models.glob("*.ckpt"))):
         card = checkpoint_card(ckpt)  # what the file holds, whatever it is named
         is_dcm = card.get("kind") == "dcm"
         for sampler, steps in ((None, None), ("ddim", 5)) if is_dcm else ((None, None),):
@@ -52,7 +97,8 @@ def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str],
     for ridge in ridges:  # each shipped ridge, named: they differ in the data they were fitted on
         rows.append(f"| `{ridge.name}` (reference) | {_cells(evaluate(ridge, dataset, split=split))} |")
     header = (f"\n### `{dataset.name}`, {split} split: {result['n'] if result else 0} trials, "
-              f"{result['n_skills'] if result else 0} skills\n\n"
+              f"{result['n_skills'] if result else 0} skills, {here[0]:g} s demos"
+              f"{', leading demonstrator' if here[1] else ''}\n\n"
               "| predictor | R within | R within: 90 % interval | Spearman within | R pooled | force RMSE [N] "
               "| ÷ copy-F_demo |\n|---|---|---|---|---|---|---|")
     return [header, *rows], dcm_scores
@@ -61,8 +107,7 @@ def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str],
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--models", type=Path, default=REPO / "models")
-    parser.add_argument("--datasets", nargs="+", default=["data/sim.h5:test", "data/acceptance.h5:test"],
-                        help="dataset:split pairs")
+    parser.add_argument("--datasets", nargs="+", default=list(DATASETS), help="dataset:split pairs")
     parser.add_argument("--out", type=Path, default=REPO / "reports" / "acceptance.md")
     args = parser.parse_args(argv)
     start = time.perf_counter()

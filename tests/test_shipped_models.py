@@ -41,3 +41,24 @@ def test_a_shipped_predictor_loads_silently_and_scores_schedules(name: str) -> N
     K = np.full((2, 160, 6), 800.0)
     loss = predict_task_loss(predictor, x_demo, F_demo, x_attr, K)
     assert loss.shape == (2,) and np.isfinite(loss).all()
+
+
+def _acceptance_script():
+    import importlib.util
+
+    path = MODELS.parent / "bench" / "acceptance.py"
+    spec = importlib.util.spec_from_file_location("acceptance_bench", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_acceptance_scores_each_predictor_on_files_recorded_as_its_training_demos(tiny_dataset_path: Path):
+    """`make acceptance` pairs a predictor with held-out files recorded as its training data recorded its demos:
+    the *_contact presets at 12 s with a leading demonstrator, the others at 8 s without."""
+    acceptance = _acceptance_script()
+    for name in SHIPPED:
+        contact = "_contact" in name
+        assert acceptance.trained_recording(MODELS / name) == ((12.0, True) if contact else (8.0, False)), name
+    assert acceptance.file_recording(tiny_dataset_path) == acceptance.preset_recording("tiny")
+    assert acceptance.preset_recording("no_such_preset") is None

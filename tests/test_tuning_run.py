@@ -166,12 +166,13 @@ def test_tune_refuses_a_checkpoint_of_another_control_rate(tiny_checkpoint: Path
 
 def test_the_demo_config_tunes_a_path_family_the_shipped_dcm_never_trained_on():
     """`make demo` runs tune.py --config-name quickstart: the shipped DCM on a path family absent from the
-    train/valid skills of the dataset preset its card names."""
+    train/valid skills of the dataset preset its card names, recorded as that preset recorded its demos."""
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
         cfg = compose("quickstart")
-    card = checkpoint_card(REPO / cfg.ckpt)
+        card = checkpoint_card(REPO / cfg.ckpt)
+        preset = compose("generate", overrides=[f"dataset={card['dataset']['dataset']}"]).dataset
     assert card["kind"] == "dcm" and card["stage"] == "pretrain"
-    preset = yaml.safe_load((REPO / "conf/dataset" / f"{card['dataset']['dataset']}.yaml").read_text())
     trained_families = {skill["spec"]["family"] for skill in preset["skills"] if skill["split"] != "test"}
     assert trained_families and cfg.demo.family not in trained_families
+    assert cfg.demo.duration_s == preset["duration_s"] and cfg.demo.get("lead", False) == preset.get("demo_lead", False)
     assert cfg.robot_free.n_trials == 1000 and cfg.robot_based.n_trials > 0
