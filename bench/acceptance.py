@@ -14,7 +14,6 @@ and never fails on it.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import time
@@ -23,47 +22,16 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-import h5py  # noqa: E402
-import yaml  # noqa: E402
-from hydra import compose, initialize_config_dir  # noqa: E402
-
+from dcm.data.recording import file_recording, preset_recording  # noqa: E402
 from dcm.evaluate import evaluate  # noqa: E402
 from dcm.model_table import INTERVAL, cell, interval_cell  # noqa: E402
 from dcm.models.export import checkpoint_card  # noqa: E402
+from dcm.models.predict import trained_on  # noqa: E402
 
 TARGET_R_WITHIN = 0.85
 DATASETS = ("data/test_wavelike.h5:test", "data/acceptance.h5:test",  # 8 s demos (the *_sim, *_diverse files)
             "data/test_wavelike_contact.h5:test", "data/test_line_contact.h5:test",  # 12 s, leading demonstrator
             "data/acceptance_contact.h5:test")
-Recording = tuple[float, bool]  # (demo duration in s, leading demonstrator)
-
-
-def recording(dataset_config: dict) -> Recording:
-    """How a dataset preset records its demos (the DemoSpec defaults where it says nothing)."""
-    return float(dataset_config.get("duration_s", 8.0)), bool(dataset_config.get("demo_lead", False))
-
-
-def file_recording(path: Path) -> Recording:
-    """The recording of a generated dataset, from the config stored in its root attributes."""
-    with h5py.File(path, "r") as f:
-        return recording(yaml.safe_load(f.attrs["config"])["dataset"])
-
-
-def preset_recording(name: str | None) -> Recording | None:
-    """The recording of the preset ``conf/dataset/<name>.yaml`` (None if there is none)."""
-    if not name or not (REPO / "conf" / "dataset" / f"{name}.yaml").is_file():
-        return None
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
-        return recording(compose("generate", overrides=[f"dataset={name}"]).dataset)
-
-
-def trained_recording(path: Path) -> Recording | None:
-    """The recording of the data a shipped checkpoint or ridge was trained on (None if unknown)."""
-    if path.suffix == ".json":
-        name = json.loads(path.read_text())["fit"]["dataset"]["attrs"].get("dataset")
-    else:
-        name = (checkpoint_card(path).get("dataset") or {}).get("dataset")
-    return preset_recording(name)
 COLUMNS = ("R_within", INTERVAL, "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
 
 
@@ -76,7 +44,7 @@ def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str],
     here = file_recording(dataset)
 
     def matching(paths: list[Path]) -> list[Path]:
-        return [p for p in paths if trained_recording(p) in (here, None)]
+        return [p for p in paths if preset_recording(trained_on(p)) in (here, None)]
 
     ridges = matching(sorted(models.glob("stiffness_ridge_*.json")))
     rows, dcm_scores = [], {}
@@ -97,8 +65,7 @@ def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str],
     for ridge in ridges:  # each shipped ridge, named: they differ in the data they were fitted on
         rows.append(f"| `{ridge.name}` (reference) | {_cells(evaluate(ridge, dataset, split=split))} |")
     header = (f"\n### `{dataset.name}`, {split} split: {result['n'] if result else 0} trials, "
-              f"{result['n_skills'] if result else 0} skills, {here[0]:g} s demos"
-              f"{', leading demonstrator' if here[1] else ''}\n\n"
+              f"{result['n_skills'] if result else 0} skills, {here.describe()}\n\n"
               "| predictor | R within | R within: 90 % interval | Spearman within | R pooled | force RMSE [N] "
               "| ÷ copy-F_demo |\n|---|---|---|---|---|---|---|")
     return [header, *rows], dcm_scores

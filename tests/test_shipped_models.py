@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dcm.data.recording import Recording, file_recording, preset_recording
 from dcm.models.configuration import CheckpointVersionWarning
 from dcm.models.export import checkpoint_card
 from dcm.models.model_card import card_markdown
-from dcm.models.predict import load_model, predict_task_loss
+from dcm.models.predict import load_model, predict_task_loss, trained_on
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 SHIPPED = ("dcm_sim.ckpt", "baseline_sim.ckpt", "dcm_realistic.ckpt", "stiffness_ridge_sim.json",
@@ -43,22 +44,12 @@ def test_a_shipped_predictor_loads_silently_and_scores_schedules(name: str) -> N
     assert loss.shape == (2,) and np.isfinite(loss).all()
 
 
-def _acceptance_script():
-    import importlib.util
 
-    path = MODELS.parent / "bench" / "acceptance.py"
-    spec = importlib.util.spec_from_file_location("acceptance_bench", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_acceptance_scores_each_predictor_on_files_recorded_as_its_training_demos(tiny_dataset_path: Path):
-    """`make acceptance` pairs a predictor with held-out files recorded as its training data recorded its demos:
-    the *_contact presets at 12 s with a leading demonstrator, the others at 8 s without."""
-    acceptance = _acceptance_script()
+def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_dataset_path: Path) -> None:
+    """What `make acceptance` pairs predictors with held-out files on, and what tune.py checks the new demo
+    against: the *_contact presets record 12 s demos with a leading demonstrator, the others 8 s without."""
     for name in SHIPPED:
-        contact = "_contact" in name
-        assert acceptance.trained_recording(MODELS / name) == ((12.0, True) if contact else (8.0, False)), name
-    assert acceptance.file_recording(tiny_dataset_path) == acceptance.preset_recording("tiny")
-    assert acceptance.preset_recording("no_such_preset") is None
+        expected = Recording(12.0, True) if "_contact" in name else Recording(8.0, False)
+        assert preset_recording(trained_on(MODELS / name)) == expected, name
+    assert file_recording(tiny_dataset_path) == preset_recording("tiny")
+    assert preset_recording("no_such_preset") is None

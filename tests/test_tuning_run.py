@@ -11,12 +11,14 @@ import pytest
 import torch
 import yaml
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from dcm.models.export import checkpoint_card
 from dcm.models.predict import load_model
+from dcm.sim.demos import DemoSpec
 from dcm.tuning.compare import compare
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
-from dcm.tuning.run import TuneConfigError, tune, use_sampler
+from dcm.tuning.run import TuneConfigError, recording_mismatch, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -171,8 +173,26 @@ def test_the_demo_config_tunes_a_path_family_the_shipped_dcm_never_trained_on():
         cfg = compose("quickstart")
         card = checkpoint_card(REPO / cfg.ckpt)
         preset = compose("generate", overrides=[f"dataset={card['dataset']['dataset']}"]).dataset
+    assert preset.demo_lead and preset.duration_s == 12.0  # recorded as quickstart.yaml records the new skill
     assert card["kind"] == "dcm" and card["stage"] == "pretrain"
     trained_families = {skill["spec"]["family"] for skill in preset["skills"] if skill["split"] != "test"}
     assert trained_families and cfg.demo.family not in trained_families
-    assert cfg.demo.duration_s == preset["duration_s"] and cfg.demo.get("lead", False) == preset.get("demo_lead", False)
+    assert recording_mismatch(cfg.ckpt, DemoSpec.from_dict(OmegaConf.to_container(cfg.demo))) is None
     assert cfg.robot_free.n_trials == 1000 and cfg.robot_based.n_trials > 0
+
+
+def test_tune_names_the_overrides_when_the_demo_is_recorded_otherwise_than_the_training_demos(
+        tiny_checkpoint: Path):
+    spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
+    eight = DemoSpec.from_dict({**spec, "duration_s": 8.0})
+    twelve_led = DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True})
+    contact = REPO / "models/dcm_diverse_contact.ckpt"  # trained on 12 s demos with a leading demonstrator
+    message = recording_mismatch(contact, eight)
+    assert "12 s demos with a leading demonstrator" in message and "8 s demos without" in message
+    assert "demo.duration_s=12 ++demo.lead=true" in message
+    assert recording_mismatch(contact, twelve_led) is None
+    assert recording_mismatch(REPO / "models/stiffness_ridge_diverse_contact.json", twelve_led) is None
+    assert "demo.duration_s=8 ++demo.lead=false" in recording_mismatch(REPO / "models/dcm_sim.ckpt", twelve_led)
+    assert recording_mismatch(REPO / "models/dcm_sim.ckpt", eight) is None
+    assert recording_mismatch(tiny_checkpoint, eight) is None  # a training checkpoint names no preset
+    assert recording_mismatch("copy_demo", eight) is None

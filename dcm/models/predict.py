@@ -11,6 +11,7 @@ A *predictor* is anything the evaluator and the tuner can score schedules with:
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -19,6 +20,7 @@ import numpy as np
 from dcm.control.objectives import task_loss
 from dcm.models.configuration import CheckpointKindError, ModelInputError
 from dcm.models.dcm import DCM, ForceModel, _checkpoint_kind
+from dcm.models.export import checkpoint_card
 from dcm.models.references import COPY_DEMO, CopyDemo, load_reference
 
 
@@ -77,6 +79,17 @@ def load_model(path: str | Path, map_location: Any = "cpu") -> Any:
         raise type(err)(" ".join(str(err).split())) from None  # one line, whatever torch.load said
     model.eval()
     return model
+
+
+def trained_on(path: str | Path) -> str | None:
+    """The dataset preset a predictor file learned from (an exported checkpoint's card, a reference's fit
+    record); None for ``copy_demo``, a training checkpoint or a file that does not say."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        return ((json.loads(path.read_text()).get("fit") or {}).get("dataset") or {}).get("attrs", {}).get("dataset")
+    if path.suffix.lower() == ".ckpt":
+        return (checkpoint_card(path).get("dataset") or {}).get("dataset")
+    return None
 
 
 def check_dataset(predictor: Any, cond_channels: list[str], target_channels: list[str], control_hz: float,

@@ -20,6 +20,7 @@ import hashlib
 import json
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -195,6 +196,33 @@ def check_predictor(model: Any, cfg: Any) -> None:
                    source=f"tune.control_hz and the tuner's model inputs for ckpt={cfg.ckpt}")
 
 
+class DemoRecordingWarning(UserWarning):
+    """The new skill's demo is recorded otherwise than the predictor's training demos."""
+
+
+def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
+    """Why the skill's demo (a DemoSpec) is not recorded as the predictor's training demos were; None if it
+    is, or if the predictor does not name a dataset preset. F_demo and x_demo are model inputs, so another
+    duration or demonstrator is an input the model never saw, and its ranking can drop."""
+    from dcm.data.recording import Recording, preset_recording
+    from dcm.models.predict import trained_on
+
+    preset = trained_on(ckpt)
+    trained = preset_recording(preset)
+    if trained is None:
+        return None
+    fixes = []
+    if spec.family != "waypoints" and float(spec.duration_s) != trained.duration_s:  # a file sets its own timing
+        fixes.append(f"demo.duration_s={trained.duration_s:g}")
+    if bool(spec.lead) != trained.lead:
+        fixes.append(f"++demo.lead={str(trained.lead).lower()}")
+    if not fixes:
+        return None
+    return (f"ckpt={ckpt} learned from {trained.describe()} (dataset {preset}); this skill's demo: "
+            f"{Recording(float(spec.duration_s), bool(spec.lead)).describe()}. To record it as the model's "
+            f"training demos were: {' '.join(fixes)} (or those fields of demo_file)")
+
+
 def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | None = None) -> bool:
     """Make a loaded DCM sample with ``sampler`` over ``sampling_steps`` denoising steps, in this process only.
 
@@ -292,6 +320,8 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
         torch.set_num_threads(int(cfg.torch_threads))
     model = load_model(cfg.ckpt, map_location=device)
     check_predictor(model, cfg)
+    if (mismatch := recording_mismatch(cfg.ckpt, spec)) is not None:
+        warnings.warn(mismatch, DemoRecordingWarning, stacklevel=2)
     use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
 
     prints = fingerprints(cfg, spec, domain, model, device)
