@@ -33,13 +33,12 @@ bench: install
 # Shipped predictors on skills they never trained on -> reports/acceptance.md. Generates its files once
 # (about 3 min): the held-out wavelike skill and the acceptance skills, recorded as `sim`/`diverse` record
 # their demos (8 s) and as the *_contact presets do (12 s, leading demonstrator), and the held-out line.
-CONTACT := dataset.duration_s=12.0 +dataset.demo_lead=true
 acceptance: install
 	test -f data/test_wavelike.h5 || $(BIN)/python -m dcm.data.generate dataset=sim "skills=[wavelike]" out=data/test_wavelike.h5
 	test -f data/acceptance.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance
 	test -f data/test_wavelike_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact "skills=[wavelike]" out=data/test_wavelike_contact.h5
 	test -f data/test_line_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact "skills=[line]" out=data/test_line_contact.h5
-	test -f data/acceptance_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance $(CONTACT) out=data/acceptance_contact.h5
+	test -f data/acceptance_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true out=data/acceptance_contact.h5
 	$(BIN)/python bench/acceptance.py
 
 # One command per model study (conf/experiment/<name>.yaml; cost in its header), e.g. `make study-realistic`:
