@@ -104,3 +104,21 @@ def test_small_values_keep_their_digits_in_the_report() -> None:
     assert _cell_text(small) == "1.23e-03 ± 5.60e-05 [1.17e-03–1.30e-03]"
     assert _cell_text({"n": 3, "mean": 0.8456, "std": 0.02, "min": 0.82, "max": 0.87}) == "0.846 ± 0.020 [0.820–0.870]"
     assert _cell_text({"n": 1, "mean": 0.0}) == "0.000"
+
+
+def test_the_figure_draws_a_numeric_sweep_in_x_order(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compared-against setting comes first in the cells (T = 30 before T = 1); the line must not zigzag."""
+    import matplotlib.axes
+
+    from dcm.model_study.report import figure
+
+    drawn: list[list[float]] = []
+    original = matplotlib.axes.Axes.errorbar
+    monkeypatch.setattr(matplotlib.axes.Axes, "errorbar",
+                        lambda self, x, y, **kw: (drawn.append(list(x)), original(self, x, y, **kw))[1])
+    summary = {"R_within": {"n": 3, "mean": 0.5, "std": 0.1}}
+    cells = [{"values": {"T": t}, "summary": {"valid": summary}} for t in (30, 1, 5, 100)]
+    study = {"study": {"x": "T", "series": None, "metrics": ["R_within"], "title": "T", "name": "T", "log_x": True},
+             "cells": cells, "splits": {"valid": {}}, "references": {}}
+    figure(study, tmp_path / "study.png")
+    assert drawn == [[1, 5, 30, 100]] and (tmp_path / "study.png").is_file()

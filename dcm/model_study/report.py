@@ -113,6 +113,8 @@ def figure(study: dict[str, Any], path: Path) -> None:
                 members = [c for c in cells if not spec["series"] or c["values"].get(spec["series"]) == name]
                 points = [(c["values"][spec["x"]], c["summary"][split][metric]) for c in members]
                 points = [(x, s) for x, s in points if _num(s["mean"]) is not None]
+                if numeric:  # a line in x order, whatever the cell order (the compared-against cell comes first)
+                    points.sort(key=lambda point: point[0])
                 if not points:
                     continue
                 pos = [x if numeric else xs.index(x) + 0.08 * s_index for x, _ in points]
