@@ -44,7 +44,6 @@ def test_a_shipped_predictor_loads_silently_and_scores_schedules(name: str) -> N
     assert loss.shape == (2,) and np.isfinite(loss).all()
 
 
-
 def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_dataset_path: Path) -> None:
     """What `make acceptance` pairs predictors with held-out files on, and what tune.py checks the new demo
     against: the *_contact presets record 12 s demos with a leading demonstrator, the others 8 s without."""
