@@ -14,6 +14,7 @@ and never fails on it.
 from __future__ import annotations
 
 import argparse
+import functools
 import platform
 import sys
 import time
@@ -22,7 +23,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from dcm.data.recording import file_recording, preset_recording  # noqa: E402
+from dcm.data.recording import Recording, file_recording, preset_recording  # noqa: E402
 from dcm.evaluate import evaluate  # noqa: E402
 from dcm.model_table import INTERVAL, cell, interval_cell  # noqa: E402
 from dcm.models.export import checkpoint_card  # noqa: E402
@@ -35,6 +36,12 @@ DATASETS = ("data/test_wavelike.h5:test", "data/acceptance.h5:test",  # 8 s demo
 COLUMNS = ("R_within", INTERVAL, "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
 
 
+@functools.cache
+def trained_recording(path: Path) -> Recording | None:
+    """The recording of a predictor's training demos, read once per predictor for all the datasets."""
+    return preset_recording(trained_on(path))
+
+
 def _cells(row: dict) -> str:
     return " | ".join(interval_cell([row]) if key == INTERVAL else cell([row.get(key)]) for key in COLUMNS)
 
@@ -44,7 +51,7 @@ def acceptance_rows(models: Path, dataset: Path, split: str) -> tuple[list[str],
     here = file_recording(dataset)
 
     def matching(paths: list[Path]) -> list[Path]:
-        return [p for p in paths if preset_recording(trained_on(p)) in (here, None)]
+        return [p for p in paths if trained_recording(p) in (here, None)]
 
     ridges = matching(sorted(models.glob("stiffness_ridge_*.json")))
     rows, dcm_scores = [], {}
