@@ -1,4 +1,5 @@
-"""The model options a user can switch: prediction type, residual target, z-score normalisation, input scaling."""
+"""The model options a user can switch: prediction type, residual target, z-score normalisation, input scaling,
+condition encoding."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import torch
 
 from dcm.models import diffusion
 from dcm.models.baseline import Baseline
+from dcm.models.cond_encoding import encode_conditions
 from dcm.models.configuration import ModelInputError
 from dcm.models.dcm import DCM
 from dcm.models.normalizer import ZSCORE_SPAN, ChannelNormalizer
@@ -124,3 +126,41 @@ def test_set_sampler_switches_steps_and_checks_them() -> None:
     assert calls["n"] == 5
     with pytest.raises(diffusion.ScheduleError, match="divid"):
         model.set_sampler("ddim", 3)
+
+
+def _positive_stiffness_cond(gen: torch.Generator, n: int = 6, horizon: int = 12) -> torch.Tensor:
+    cond = torch.randn(n, horizon, 24, generator=gen)
+    cond[..., 18:] = 100.0 + 2400.0 * torch.rand(n, horizon, 6, generator=gen)
+    return cond
+
+
+def test_physical_encoding_is_the_deflection_and_log_stiffness() -> None:
+    cond = _positive_stiffness_cond(torch.Generator().manual_seed(3))
+    encoded = encode_conditions(cond, "physical")
+    torch.testing.assert_close(encoded[..., :12], cond[..., :12])           # x_demo, F_demo unchanged
+    torch.testing.assert_close(encoded[..., 12:18], cond[..., 12:18] - cond[..., :6])
+    torch.testing.assert_close(encoded[..., 18:], cond[..., 18:].log())
+    assert encode_conditions(cond, "raw") is cond
+    with pytest.raises(ValueError, match="K has values <= 0"):
+        encode_conditions(torch.zeros(1, 4, 24), "physical")
+
+
+@pytest.mark.parametrize("cls", [DCM, Baseline])
+def test_physical_encoding_option_fits_trains_and_predicts(cls: type) -> None:
+    """The normaliser is fitted on the encoded conditions, so they reach the net in [-1, 1] (min-max), and
+    predict_forces takes the same raw inputs as with the paper's encoding."""
+    gen = torch.Generator().manual_seed(4)
+    cond = _positive_stiffness_cond(gen)
+    force = torch.randn(6, 12, 6, generator=gen)
+    model = cls(net=dict(TINY_NET), cond_encoding="physical", ema_decay=0.0)
+    model.fit_normalizers(cond, force)
+    cond_n = model.normalized_cond(cond)
+    assert float(cond_n[..., 18:21].min()) == pytest.approx(-1.0, abs=1e-5)
+    assert float(cond_n[..., 18:21].max()) == pytest.approx(1.0, abs=1e-5)
+    loss = model.loss(model.net, cond_n, model.normalized_target(cond, force))
+    loss.backward()
+    assert torch.isfinite(loss)
+    mean, _ = model.predict_forces(*(cond[..., i:i + 6].numpy() for i in (0, 6, 12, 18)))
+    assert mean.shape == (6, 12, 6) and np.isfinite(mean).all()
+    with pytest.raises(ModelInputError, match="cond_encoding"):
+        cls(net=dict(TINY_NET), cond_encoding="onehot")

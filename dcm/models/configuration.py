@@ -17,6 +17,7 @@ from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; 
     cond_channel_names,
     target_channel_names,
 )
+from dcm.models.cond_encoding import COND_ENCODINGS
 from dcm.models.diffusion import INPUT_SCALINGS, PREDICTION_TYPES
 from dcm.models.normalizer import NORMALIZATIONS
 
@@ -76,12 +77,15 @@ class ForceModelConfig:
     eval_batch_size: int = 256
     target: str = "absolute"  # absolute: F_obs | residual: F_obs - F_demo (F_demo added back on prediction)
     normalization: str = "minmax"  # minmax: train [min, max] -> [-1, 1] | zscore: mean ± 3 std -> [-1, 1]
+    cond_encoding: str = "raw"  # raw (the paper's) | physical: x_attr - x_demo and log K (dcm.models.cond_encoding)
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
             raise ModelInputError(f"target must be one of {TARGETS}, got {self.target!r}")
         if self.normalization not in NORMALIZATIONS:
             raise ModelInputError(f"normalization must be one of {NORMALIZATIONS}, got {self.normalization!r}")
+        if self.cond_encoding not in COND_ENCODINGS:
+            raise ModelInputError(f"cond_encoding must be one of {COND_ENCODINGS}, got {self.cond_encoding!r}")
         if self.lr <= 0:
             raise ModelInputError(f"lr must be > 0, got {self.lr}")
         if not 0.0 <= self.ema_decay < 1.0:

@@ -32,6 +32,7 @@ from dcm.models.configuration import (
     ForceModelConfig,
     ModelInputError,
 )
+from dcm.models.cond_encoding import encode_conditions
 from dcm.models.nets import build_score_net
 from dcm.data.schema import cond_slice
 from dcm.models.normalizer import ChannelNormalizer
@@ -131,7 +132,7 @@ class ForceModel(L.LightningModule):
         with the weights, so a fine-tuned model keeps its pre-training statistics."""
         cond = torch.as_tensor(np.asarray(cond, dtype=np.float32))
         target = torch.as_tensor(np.asarray(target, dtype=np.float32))
-        self.cond_norm.fit_data(cond, self.cfg.normalization)
+        self.cond_norm.fit_data(encode_conditions(cond, self.cfg.cond_encoding), self.cfg.normalization)
         self.target_norm.fit_data(self.model_target(cond, target), self.cfg.normalization)
 
     def model_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
@@ -174,12 +175,16 @@ class ForceModel(L.LightningModule):
     def on_fit_start(self) -> None:
         self._require_fitted()
 
+    def normalized_cond(self, cond: torch.Tensor) -> torch.Tensor:
+        """The net's condition input for raw conditions: encoded (``cfg.cond_encoding``), then normalised."""
+        return self.cond_norm.normalize(encode_conditions(cond, self.cfg.cond_encoding))
+
     def normalized_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
         """The training target in normalised units for raw conditions and F_obs."""
         return self.target_norm.normalize(self.model_target(cond, force))
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        loss = self.loss(self.net, self.cond_norm.normalize(batch["cond"]),
+        loss = self.loss(self.net, self.normalized_cond(batch["cond"]),
                          self.normalized_target(batch["cond"], batch["target"]))
         self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=batch["cond"].shape[0])
         return loss
@@ -187,7 +192,7 @@ class ForceModel(L.LightningModule):
     def _eval_loss(self, batch: dict[str, torch.Tensor], batch_idx: int, prefix: str) -> torch.Tensor:
         # A fixed generator per batch makes the (noisy) diffusion loss comparable across epochs.
         gen = torch.Generator(device=self.device).manual_seed(10_000 + batch_idx)
-        loss = self.loss(self.inference_net, self.cond_norm.normalize(batch["cond"]),
+        loss = self.loss(self.inference_net, self.normalized_cond(batch["cond"]),
                          self.normalized_target(batch["cond"], batch["target"]), generator=gen)
         self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=batch["cond"].shape[0],
                  sync_dist=True)
@@ -256,7 +261,7 @@ class ForceModel(L.LightningModule):
     def predict_raw(self, cond: torch.Tensor, n_samples: int | None = None,
                     generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and spread of the wrench [N, N·m] (B,H,6) for raw conditions (B,H,24) on the model's device."""
-        mean_n, std_n = self.predict_normalized(self.cond_norm.normalize(cond), n_samples, generator)
+        mean_n, std_n = self.predict_normalized(self.normalized_cond(cond), n_samples, generator)
         mean = self.force_from_target(cond, self.target_norm.unnormalize(mean_n))
         return mean, self.target_norm.unnormalize_std(std_n)
 

@@ -1,0 +1,34 @@
+"""How the per-step conditions reach the score net, before normalisation.
+
+``raw`` feeds (x_demo | F_demo | x_attr | K) as recorded, the paper's encoding. ``physical`` feeds the same
+information in the quantities the impedance law acts on: the attractor as its offset from the demo pose,
+``x_attr - x_demo`` (the spring's commanded deflection, millimetres to centimetres, which a bowl-sized
+min-max range of x_attr compresses), and the stiffness as ``log K``, so that 100 → 200 N/m weighs as much
+as 1,000 → 2,000 N/m (the tracking error goes with the compliance 1/K, not with K). Both are invertible, so
+no information is lost; the channel layout and count stay those of ``dcm.data.schema``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from dcm.data.schema import cond_slice
+
+COND_ENCODINGS = ("raw", "physical")
+_X_DEMO, _X_ATTR, _K = cond_slice("x_demo"), cond_slice("x_attr"), cond_slice("K")
+
+
+def encode_conditions(cond: torch.Tensor, encoding: str) -> torch.Tensor:
+    """Raw conditions (..., 24) in physical units -> the net's input channels (..., 24), before normalising."""
+    if encoding == "raw":
+        return cond
+    if encoding != "physical":
+        raise ValueError(f"cond_encoding must be one of {COND_ENCODINGS}, got {encoding!r}")
+    stiffness = cond[..., _K]
+    if not bool((stiffness > 0).all()):
+        raise ValueError(f"cond_encoding='physical' takes log K, but K has values <= 0 "
+                              f"(min {float(stiffness.min()):.4g}); stiffness must be positive")
+    out = cond.clone()
+    out[..., _X_ATTR] = cond[..., _X_ATTR] - cond[..., _X_DEMO]
+    out[..., _K] = torch.log(stiffness)
+    return out
