@@ -1,0 +1,41 @@
+"""Every study in conf/experiment/ composes for each value it sweeps, and builds the model it would train.
+
+A typo in a sweep (``model.cond_encodng``, a missing net config) would otherwise surface only after the
+sweep's earlier runs had spent their hours.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.utils import get_class
+from omegaconf import OmegaConf
+
+REPO = Path(__file__).resolve().parents[1]
+EXPERIMENTS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*.yaml"))
+
+
+def _sweep_overrides(name: str) -> list[str]:
+    """One override per swept value, each on its own (the sweep's product is these, combined)."""
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        cfg = compose("train", overrides=[f"+experiment={name}"], return_hydra_config=True)
+    params = cfg.hydra.sweeper.params or {}
+    return [f"{key}={value}" for key, values in params.items() for value in str(values).split(",")]
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_experiment_sweep_values_build_their_model(name: str) -> None:
+    overrides = _sweep_overrides(name)
+    assert overrides, f"conf/experiment/{name}.yaml sweeps nothing"
+    for override in overrides:
+        with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+            cfg = compose("train", overrides=[f"+experiment={name}", override])
+        assert cfg.study.name == name
+        model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
+        cls = get_class(model_cfg.pop("_target_"))
+        if "diffusion_steps" in model_cfg:
+            model_cfg["schedule"] = OmegaConf.to_container(cfg.schedule, resolve=True)
+        model_cfg["net"] = OmegaConf.to_container(cfg.net, resolve=True)
+        cls(**model_cfg)  # validates every field (unknown keys, bad values) and builds the net
