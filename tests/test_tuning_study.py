@@ -16,7 +16,7 @@ from dcm.models.references import main as references_main
 from dcm.tuning.study import run_study
 from dcm.tuning.study_config import StudyConfigError
 from dcm.tuning.study_controls import prior_levels
-from dcm.tuning.study_stats import aggregate, paired_test
+from dcm.tuning.study_stats import aggregate, landscape, paired_test
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -46,6 +46,15 @@ def test_paired_test_drops_missing_seeds_and_refuses_unpaired_lists():
         paired_test([1.0, 2.0], [1.0])
     with pytest.raises(ValueError, match="subject tuner 'dcm'"):
         aggregate({"baseline": [1.0]})
+
+
+def test_landscape_on_a_skill_where_stiffer_tracks_better_and_on_a_flat_one():
+    stiffness = np.linspace(100.0, 1500.0, 11)[:, None, None] * np.ones((11, 3, 3))
+    steep = landscape(stiffness, 1000.0 / stiffness[:, 0, 0])  # L_task ~ 1/K: 10 N at 100 N/m, 0.67 at 1500
+    assert steep["n_trials"] == 11 and steep["spearman_mean_K"] == pytest.approx(-1.0)
+    assert steep["median"] == pytest.approx(1000.0 / 800.0) and steep["spread_q90_q10"] > 5.0
+    flat = landscape(stiffness, np.full(11, 0.25))
+    assert flat["spread_q90_q10"] == pytest.approx(1.0) and math.isnan(flat["spearman_mean_K"])
 
 
 def test_prior_levels_are_bin_midpoints():
@@ -102,6 +111,8 @@ def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_chec
     for name in ("study.json", "study.md", "study.png", "cost.md"):
         assert (out / name).stat().st_size > 0
     assert "robot-based N=6" in (out / "study.md").read_text()
+    assert report["landscape"]["n_trials"] == 12  # both seeds' robot-based trials
+    assert "What stiffness does to this skill, over the 12 robot-based trials" in (out / "study.md").read_text()
     assert "virtual trials" in (out / "cost.md").read_text()
 
     # Resuming: finished runs are kept; only the one whose results.json is gone runs again (from its logs).

@@ -33,7 +33,7 @@ from dcm.tuning.study_config import (Tuner, check_resume, check_study, plain, ro
                                      tuners)
 from dcm.tuning.study_controls import demo_reference_point, run_prior, setup_skill, write_json
 from dcm.tuning.study_report import box_plot, cost_table, label, study_table
-from dcm.tuning.study_stats import aggregate
+from dcm.tuning.study_stats import aggregate, landscape
 
 RESULTS = "results.json"
 TIMING = "timing.json"  # wall time of the invocation that finished a run (for the study's time estimate)
@@ -150,6 +150,7 @@ def collect(cfg: Any, out_dir: Path, tuner_list: list[Tuner], seed_list: list[in
     values: dict[str, list[float]] = {name: [] for name in names}
     times: dict[str, list[dict[str, float]]] = {name: [] for name in names}
     seed_seconds = []
+    robot_stiffness, robot_objectives = [], []
     for seed in seed_list:
         wall = 0.0
         for name in [t.name for t in tuner_list] + ["prior"]:
@@ -165,7 +166,9 @@ def collect(cfg: Any, out_dir: Path, tuner_list: list[Tuner], seed_list: list[in
                 times[name].append({"opt_seconds": free["seconds"], "model_seconds": free["seconds_model"],
                                     "validation_seconds": free["validation_seconds"]})
         robot_folder = run_dir(out_dir, tuner_list[0].name, seed)
-        robot = TrialLog.load(robot_folder / ROBOT_LOG).arrays()[1]
+        robot_k, robot = TrialLog.load(robot_folder / ROBOT_LOG).arrays()
+        robot_stiffness.append(robot_k)
+        robot_objectives.append(robot)
         robot_seconds = json.loads((robot_folder / RESULTS).read_text())["robot_based"]["seconds"]
         for n in counts:
             values[f"robot_based_{n}"].append(_hv(robot[:n], reference))
@@ -194,6 +197,8 @@ def collect(cfg: Any, out_dir: Path, tuner_list: list[Tuner], seed_list: list[in
                          for name, c in costs.items()},
         "hypervolume": values,
         "statistics": stats,
+        # over every robot-based trial of every seed: does stiffness move this skill's L_task at all?
+        "landscape": landscape(np.concatenate(robot_stiffness), np.concatenate(robot_objectives)[:, 0]),
         "costs": costs,
         "wall_seconds_per_seed": per_seed,  # all tuners of one seed, median over the seeds run here
         "estimated_seconds": None if per_seed is None else {str(s): per_seed * s for s in (len(seed_list), 16)},
@@ -203,7 +208,7 @@ def collect(cfg: Any, out_dir: Path, tuner_list: list[Tuner], seed_list: list[in
 def write_outputs(cfg: Any, out_dir: Path, report: dict[str, Any], n_seeds: int) -> None:
     stats, reference = report["statistics"], report["reference_point"]
     write_json(out_dir / "study.json", report)
-    table = study_table(stats, report["robot_trials"], reference, n_seeds)
+    table = study_table(stats, report["robot_trials"], reference, n_seeds, report["landscape"])
     (out_dir / "study.md").write_text(table)
     (out_dir / "cost.md").write_text(cost_table(report["costs"], float(cfg.robot_minutes_per_trial)))
     skill = Path(cfg.demo_file).stem if cfg.demo_file else cfg.demo.get("name", "skill")

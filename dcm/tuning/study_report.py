@@ -58,8 +58,9 @@ def _num(value: float | None, digits: int = 4) -> str:
 
 
 def study_table(stats: Mapping[str, Any], robot_trials: Mapping[str, int], reference: Mapping[str, Any],
-                n_seeds: int) -> str:
-    """Markdown: per tuner the robot trials, median and IQR of I_H, and the DCM's paired test against it."""
+                n_seeds: int, landscape: Mapping[str, Any] | None = None) -> str:
+    """Markdown: per tuner the robot trials, median and IQR of I_H, and the DCM's paired test against it; then
+    how much stiffness moves the skill's L_task (``study_stats.landscape``), which bounds what ranking can win."""
     subject = stats["subject"]
     lines = [
         f"I_H over {n_seeds} seeds against one fixed reference point (L_task {reference['L_task_N']:.4g} N, "
@@ -80,6 +81,12 @@ def study_table(stats: Mapping[str, Any], robot_trials: Mapping[str, int], refer
             p = "—" if test["p"] is None else f"{test['p']:.3g}" + (" (significant)" if test["significant"] else "")
             cells += [_num(test["median_difference"]), f"{test['wins']} / {test['losses']} / {test['ties']}", p]
         lines.append("| " + " | ".join(cells) + " |")
+    if landscape:
+        lines += ["", f"What stiffness does to this skill, over the {landscape['n_trials']} robot-based trials of all "
+                  f"seeds: L_task 10 / 50 / 90 % = {_num(landscape['q10'], 3)} / {_num(landscape['median'], 3)} / "
+                  f"{_num(landscape['q90'], 3)} N (q90 / q10 = {_num(landscape['spread_q90_q10'], 3)}), Spearman "
+                  f"rho(L_task, mean K) = {_num(landscape['spearman_mean_K'], 2)}. A narrow spread leaves the front "
+                  "to L_comp, which every tuner computes exactly, so better ranking of L_task can gain little."]
     return "\n".join(lines) + "\n"
 
 

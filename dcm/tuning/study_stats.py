@@ -70,3 +70,22 @@ def aggregate(results: Mapping[str, Sequence[float]], subject: str = "dcm", alph
         tests[control] = test
     return {"subject": subject, "alpha": alpha,
             "tuners": {name: summarize(values) for name, values in results.items()}, "tests": tests}
+
+
+def landscape(phase_stiffness: np.ndarray, task_loss: np.ndarray) -> dict[str, float | int]:
+    """How much the stiffness moves this skill's L_task, over simulated trials (N, P, 3) and their L_task (N,).
+
+    A skill whose L_task hardly changes between schedules leaves the tuner little to rank: its front is then
+    set by L_comp, which every tuner computes exactly, and a better contact model cannot show. Returns the
+    L_task quantiles (10 / 50 / 90 %), the spread q90 / q10, and Spearman's rho of L_task against the mean
+    stiffness of the schedule (negative: stiffer tracks better).
+    """
+    from scipy.stats import spearmanr
+
+    task_loss = np.asarray(task_loss, dtype=np.float64).reshape(-1)
+    mean_k = np.asarray(phase_stiffness, dtype=np.float64).reshape(len(task_loss), -1).mean(axis=1)
+    q10, q50, q90 = np.percentile(task_loss, [10, 50, 90])
+    varies = len(task_loss) > 2 and np.ptp(mean_k) > 0 and np.ptp(task_loss) > 0
+    rho = spearmanr(task_loss, mean_k).statistic if varies else math.nan
+    return {"n_trials": int(len(task_loss)), "q10": float(q10), "median": float(q50), "q90": float(q90),
+            "spread_q90_q10": float(q90 / q10) if q10 > 0 else math.nan, "spearman_mean_K": float(rho)}
