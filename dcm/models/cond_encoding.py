@@ -27,7 +27,7 @@ def encode_conditions(cond: torch.Tensor, encoding: str) -> torch.Tensor:
     stiffness = cond[..., _K]
     if not bool((stiffness > 0).all()):
         raise ValueError(f"cond_encoding='physical' takes log K, but K has values <= 0 "
-                              f"(min {float(stiffness.min()):.4g}); stiffness must be positive")
+                         f"(min {float(stiffness.min()):.4g}); stiffness must be positive")
     out = cond.clone()
     out[..., _X_ATTR] = cond[..., _X_ATTR] - cond[..., _X_DEMO]
     out[..., _K] = torch.log(stiffness)
