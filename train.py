@@ -117,12 +117,19 @@ def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
             model.net.load_state_dict(model.ema_net.state_dict())  # continue from the averaged weights
         log.info("initialised from %s (normaliser kept from pre-training)", ckpt)
         return model
-    if cls is DCM or issubclass(cls, DCM):
-        model_cfg["schedule"] = OmegaConf.to_container(cfg.schedule, resolve=True)
-    model_cfg["net"] = OmegaConf.to_container(cfg.net, resolve=True)
-    model = cls(data_spec=data_spec, **model_cfg)
+    model = new_model(cfg, data_spec)
     model.fit_normalizers(*dm.train_arrays())
     return model
+
+
+def new_model(cfg: DictConfig, data_spec: dict[str, Any] | None = None) -> ForceModel:
+    """The untrained model ``cfg.model`` names, with the ``net`` (and, for a DCM, ``schedule``) groups passed in."""
+    model_cfg: dict[str, Any] = OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[assignment]
+    cls: type[ForceModel] = get_class(model_cfg.pop("_target_"))
+    if issubclass(cls, DCM):
+        model_cfg["schedule"] = OmegaConf.to_container(cfg.schedule, resolve=True)
+    model_cfg["net"] = OmegaConf.to_container(cfg.net, resolve=True)
+    return cls(data_spec=data_spec, **model_cfg)
 
 
 def _has_split(path: Path, split: str) -> bool:
