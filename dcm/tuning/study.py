@@ -166,13 +166,14 @@ def collect(cfg: Any, out_dir: Path, tuner_list: list[Tuner], seed_list: list[in
                 times[name].append({"opt_seconds": free["seconds"], "model_seconds": free["seconds_model"],
                                     "validation_seconds": free["validation_seconds"]})
         robot_folder = run_dir(out_dir, tuner_list[0].name, seed)
-        robot_k, robot = TrialLog.load(robot_folder / ROBOT_LOG).arrays()
-        robot_stiffness.append(robot_k)
-        robot_objectives.append(robot)
+        trial_stiffness, trial_objectives = TrialLog.load(robot_folder / ROBOT_LOG).arrays()
+        robot_stiffness.append(trial_stiffness)
+        robot_objectives.append(trial_objectives)
         robot_seconds = json.loads((robot_folder / RESULTS).read_text())["robot_based"]["seconds"]
         for n in counts:
-            values[f"robot_based_{n}"].append(_hv(robot[:n], reference))
-            times[f"robot_based_{n}"].append({"opt_seconds": robot_seconds * n / len(robot), "validation_seconds": 0.0})
+            values[f"robot_based_{n}"].append(_hv(trial_objectives[:n], reference))
+            times[f"robot_based_{n}"].append({"opt_seconds": robot_seconds * n / len(trial_objectives),
+                                              "validation_seconds": 0.0})
         seed_seconds.append(wall)
 
     stats = aggregate(values, subject=tuner_list[0].name, alpha=float(cfg.alpha))
