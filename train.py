@@ -24,6 +24,7 @@ traceback instead.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -217,6 +218,22 @@ def planned_config(cfg: DictConfig) -> dict[str, Any]:
     return OmegaConf.to_container(planned)  # type: ignore[return-value]
 
 
+def with_added_model_defaults(saved: dict[str, Any], planned: dict[str, Any]) -> dict[str, Any]:
+    """``saved`` with the model options it predates filled in, where ``planned`` keeps their defaults.
+
+    A checkpoint written before an option existed loads with the option's default
+    (``ForceModelConfig.from_kwargs``), so its run trained exactly that default. Without this, every option
+    added to the model would make every earlier run of a study "another config", finished or not.
+    """
+    config_cls = get_class(str(planned["model"]["_target_"])).config_cls
+    defaults = {f.name: f.default for f in dataclasses.fields(config_cls) if f.default is not dataclasses.MISSING}
+    model = dict(saved.get("model") or {})
+    for key, value in planned["model"].items():
+        if key not in model and key in defaults and defaults[key] == value:
+            model[key] = value
+    return {**saved, "model": model}
+
+
 def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
     """What an existing ``run_dir`` already holds, so a re-run sweep (same sweep dir) costs nothing.
 
@@ -227,7 +244,9 @@ def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
     saved, summary, last = run_dir / "config.yaml", run_dir / "summary.json", run_dir / "checkpoints" / "last.ckpt"
     if not saved.is_file() or not (summary.is_file() or last.is_file()):
         return None
-    differs = config_diff(OmegaConf.to_container(OmegaConf.load(saved)), planned_config(cfg), ignore=("resume",))
+    planned = planned_config(cfg)
+    old = with_added_model_defaults(OmegaConf.to_container(OmegaConf.load(saved)), planned)
+    differs = config_diff(old, planned, ignore=("resume",))
     if differs:
         raise TrainConfigError(f"{run_dir} holds a run of another config ({'; '.join(differs)}); delete it or "
                                "choose another hydra.run.dir / hydra.sweep.dir")
