@@ -238,8 +238,9 @@ def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
     """What an existing ``run_dir`` already holds, so a re-run sweep (same sweep dir) costs nothing.
 
     A finished run of the same config returns its summary.json; a killed one (last.ckpt, no summary) is
-    continued (sets ``cfg.resume``); a run of another config is refused, naming what differs. A folder
-    without checkpoints (a run that failed before its first epoch) is simply reused.
+    continued (sets ``cfg.resume``); a run of another config is refused, naming what differs (a model option
+    added since the run counts as the same while it keeps its default). A folder without checkpoints (a
+    run that failed before its first epoch) is simply reused.
     """
     saved, summary, last = run_dir / "config.yaml", run_dir / "summary.json", run_dir / "checkpoints" / "last.ckpt"
     if not saved.is_file() or not (summary.is_file() or last.is_file()):

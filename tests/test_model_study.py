@@ -80,6 +80,7 @@ def test_a_run_older_than_a_model_option_is_reused_while_the_option_keeps_its_de
     old = with_added_model_defaults(OmegaConf.to_container(saved), planned)
     assert config_diff(old, planned) == ["model.cond_encoding: (absent) -> physical"]
 
+
 def test_bad_sweep_dir_is_one_line_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
         study_main([str(tmp_path / "nosuch")])
