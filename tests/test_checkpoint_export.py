@@ -19,7 +19,8 @@ from dcm.models.predict import load_model
 
 def _inputs(seed: int = 0, horizon: int = 16) -> tuple[np.ndarray, ...]:
     rng = np.random.default_rng(seed)
-    return tuple(rng.normal(size=(2, horizon, 6)).astype(np.float32) for _ in range(4))
+    x_demo, F_demo, x_attr = (rng.normal(size=(2, horizon, 6)).astype(np.float32) for _ in range(3))
+    return x_demo, F_demo, x_attr, rng.uniform(100, 2500, size=(2, horizon, 6)).astype(np.float32)
 
 
 @pytest.fixture()

@@ -62,6 +62,14 @@ def test_write_rejects_nan(tmp_path: Path) -> None:
     assert not (tmp_path / "x.h5").exists() and not list(tmp_path.iterdir())
 
 
+def test_write_rejects_non_positive_stiffness(tmp_path: Path) -> None:
+    traj = _trajectory(np.random.default_rng(1), 0)
+    traj["K"][4, 2] = 0.0
+    with pytest.raises(DatasetError, match=r"traj_000000.*field K.*stiffness must be positive, got 0 .*\[4, 2\]"):
+        write_dataset(tmp_path / "x.h5", [traj], {"train": ["traj_000000"]}, {"control_hz": 20.0})
+    assert not list(tmp_path.iterdir())
+
+
 def _copy(src: Path, tmp_path: Path, name: str) -> Path:
     dst = tmp_path / name
     shutil.copy(src, dst)
@@ -89,6 +97,14 @@ def test_nan_on_load(hand_made: Path, tmp_path: Path) -> None:
     with h5py.File(broken, "r+") as f:
         f["data/traj_000001/x_attr"][5, 2] = np.inf
     with pytest.raises(DatasetError, match=r"nan.h5.*traj_000001.*x_attr.*NaN or inf.*\[5, 2\]"):
+        load_dataset(broken, split="train")
+
+
+def test_negative_stiffness_on_load(hand_made: Path, tmp_path: Path) -> None:
+    broken = _copy(hand_made, tmp_path, "soft.h5")
+    with h5py.File(broken, "r+") as f:
+        f["data/traj_000002/K"][7, 0] = -150.0
+    with pytest.raises(DatasetError, match=r"soft.h5.*traj_000002.*field K.*positive, got -150 .*\[7, 0\]"):
         load_dataset(broken, split="train")
 
 

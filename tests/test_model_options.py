@@ -17,6 +17,12 @@ from dcm.models.normalizer import ZSCORE_SPAN, ChannelNormalizer
 TINY_NET = {"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2}
 
 
+def _positive_stiffness_cond(gen: torch.Generator, n: int = 6, horizon: int = 12) -> torch.Tensor:
+    cond = torch.randn(n, horizon, 24, generator=gen)
+    cond[..., 18:] = 100.0 + 2400.0 * torch.rand(n, horizon, 6, generator=gen)
+    return cond
+
+
 @pytest.mark.parametrize("kind", diffusion.PREDICTION_TYPES)
 def test_training_target_is_what_the_scheduler_reads_back(kind: str) -> None:
     """An oracle output built by training_target makes diffusers' step recover x0, for every type.
@@ -94,7 +100,7 @@ def test_residual_target_round_trip_and_prediction(cls: type) -> None:
     """A residual model learns F_obs - F_demo and adds F_demo back: the target round-trips, and predictions
     of a model whose net outputs the normalised zero residual equal F_demo."""
     gen = torch.Generator().manual_seed(1)
-    cond = torch.randn(6, 12, 24, generator=gen)
+    cond = _positive_stiffness_cond(gen)
     force = cond[..., 6:12] + 0.3 * torch.randn(6, 12, 6, generator=gen)
     model = cls(net=dict(TINY_NET), target="residual", ema_decay=0.0)
     model.fit_normalizers(cond, force)
@@ -128,12 +134,6 @@ def test_set_sampler_switches_steps_and_checks_them() -> None:
         model.set_sampler("ddim", 3)
 
 
-def _positive_stiffness_cond(gen: torch.Generator, n: int = 6, horizon: int = 12) -> torch.Tensor:
-    cond = torch.randn(n, horizon, 24, generator=gen)
-    cond[..., 18:] = 100.0 + 2400.0 * torch.rand(n, horizon, 6, generator=gen)
-    return cond
-
-
 def test_physical_encoding_is_the_deflection_and_log_stiffness() -> None:
     cond = _positive_stiffness_cond(torch.Generator().manual_seed(3))
     encoded = encode_conditions(cond, "physical")
@@ -141,8 +141,6 @@ def test_physical_encoding_is_the_deflection_and_log_stiffness() -> None:
     torch.testing.assert_close(encoded[..., 12:18], cond[..., 12:18] - cond[..., :6])
     torch.testing.assert_close(encoded[..., 18:], cond[..., 18:].log())
     assert encode_conditions(cond, "raw") is cond
-    with pytest.raises(ValueError, match="K has values <= 0"):
-        encode_conditions(torch.zeros(1, 4, 24), "physical")
 
 
 @pytest.mark.parametrize("cls", [DCM, Baseline])
@@ -162,5 +160,8 @@ def test_physical_encoding_option_fits_trains_and_predicts(cls: type) -> None:
     assert torch.isfinite(loss)
     mean, _ = model.predict_forces(*(cond[..., i:i + 6].numpy() for i in (0, 6, 12, 18)))
     assert mean.shape == (6, 12, 6) and np.isfinite(mean).all()
+    no_stiffness = np.zeros((12, 6), np.float32)
+    with pytest.raises(ModelInputError, match="K must be positive, got min 0"):
+        model.predict_forces(*(cond[0, :, i:i + 6].numpy() for i in (0, 6, 12)), no_stiffness)
     with pytest.raises(ModelInputError, match="cond_encoding"):
         cls(net=dict(TINY_NET), cond_encoding="onehot")

@@ -184,6 +184,21 @@ def compute_stats(arrays: Mapping[str, np.ndarray]) -> dict[str, dict[str, np.nd
     return stats
 
 
+def _value_problem(field_name: str, value: np.ndarray) -> str | None:
+    """What is wrong with one trajectory's array, or None: NaN/inf anywhere, or a stiffness that is not > 0.
+
+    K > 0 is checked here, where data enters, so that nothing downstream (log K, 1/K features) has to.
+    """
+    if field_name == "contact":
+        return None
+    if not np.all(np.isfinite(value)):
+        return f"contains NaN or inf (first at index {np.argwhere(~np.isfinite(value))[0].tolist()})"
+    if field_name == "K" and not np.all(value > 0):
+        bad = np.argwhere(~(value > 0))[0]
+        return f"stiffness must be positive, got {float(value[tuple(bad)]):.4g} (first at index {bad.tolist()})"
+    return None
+
+
 def _is_failed(traj: Mapping[str, Any]) -> bool:
     return bool(traj.get("failed", False))
 
@@ -227,8 +242,9 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
                 value = value.astype(np.uint8)
             else:
                 value = value.astype(np.float32)
-                if not np.all(np.isfinite(value)):
-                    raise DatasetError(path, "contains NaN or inf", trajectory=name, field=field_name)
+                problem = _value_problem(field_name, value)
+                if problem:
+                    raise DatasetError(path, problem, trajectory=name, field=field_name)
             arrays[field_name] = value
         meta = {k: v for k, v in traj.items() if k not in FIELDS and k != "name"}
         for scalar in SCALARS:
@@ -360,7 +376,7 @@ def load_dataset(path: str | os.PathLike, split: str | None = None, expect_contr
 
     Raises :class:`DatasetError` naming file/trajectory/field for a truncated or corrupt file, an unknown
     format version, a control rate other than ``expect_control_hz``, an empty or unknown split, a missing
-    trajectory/array/attribute, a wrong shape or a NaN/inf value.
+    trajectory/array/attribute, a wrong shape, a NaN/inf value or a stiffness ≤ 0.
     """
     path = Path(path)
     try:
@@ -401,10 +417,9 @@ def load_dataset(path: str | os.PathLike, split: str | None = None, expect_contr
                         raise DatasetError(path, f"shape {dataset.shape}, expected {want} (horizon {horizon})",
                                            trajectory=name, field=field_name)
                     value = dataset[()]
-                    if not np.all(np.isfinite(value)):
-                        bad = np.argwhere(~np.isfinite(value))[0].tolist()
-                        raise DatasetError(path, f"contains NaN or inf (first at index {bad})",
-                                           trajectory=name, field=field_name)
+                    problem = _value_problem(field_name, value)
+                    if problem:
+                        raise DatasetError(path, problem, trajectory=name, field=field_name)
                     arrays[field_name][i] = value
                 traj_meta = {k: _decode_attr(v) for k, v in group.attrs.items()}
                 for scalar, out in (("L_task", L_task), ("L_comp", L_comp)):

@@ -5,7 +5,8 @@ information in the quantities the impedance law acts on: the attractor as its of
 ``x_attr - x_demo`` (the spring's commanded deflection, millimetres to centimetres, which a bowl-sized
 min-max range of x_attr compresses), and the stiffness as ``log K``, so that 100 → 200 N/m weighs as much
 as 1,000 → 2,000 N/m (the tracking error goes with the compliance 1/K, not with K). Both are invertible, so
-no information is lost; the channel layout and count stay those of ``dcm.data.schema``.
+no information is lost; the channel layout and count stay those of ``dcm.data.schema``. K > 0 is checked
+where data enters (``load_dataset``, ``predict_forces``), not per batch here, which would stall a GPU.
 """
 
 from __future__ import annotations
@@ -24,11 +25,7 @@ def encode_conditions(cond: torch.Tensor, encoding: str) -> torch.Tensor:
         return cond
     if encoding != "physical":
         raise ValueError(f"cond_encoding must be one of {COND_ENCODINGS}, got {encoding!r}")
-    stiffness = cond[..., _K]
-    if not bool((stiffness > 0).all()):
-        raise ValueError(f"cond_encoding='physical' takes log K, but K has values <= 0 "
-                         f"(min {float(stiffness.min()):.4g}); stiffness must be positive")
     out = cond.clone()
     out[..., _X_ATTR] = cond[..., _X_ATTR] - cond[..., _X_DEMO]
-    out[..., _K] = torch.log(stiffness)
+    out[..., _K] = torch.log(cond[..., _K])
     return out

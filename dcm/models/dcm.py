@@ -289,6 +289,8 @@ class ForceModel(L.LightningModule):
             if t.shape[-1:] != (6,) or t.dim() not in (2, 3):
                 raise ModelInputError(f"predict_forces: {name} must be (B,H,6) or (H,6), got {tuple(t.shape)}")
             parts.append(t)
+        if not bool((parts[-1] > 0).all()):
+            raise ModelInputError(f"predict_forces: K must be positive, got min {float(parts[-1].min()):.4g} N/m")
         shapes = {tuple(p.shape) for p in parts}
         if len(shapes) != 1:
             raise ModelInputError(f"predict_forces: inputs differ in shape: {sorted(shapes)}")
