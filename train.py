@@ -25,6 +25,7 @@ traceback instead.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 import logging
 import math
@@ -49,6 +50,7 @@ from dcm.data.schema import read_root_attrs
 from dcm.models.callbacks import ForceMetricsCallback, RunETACallback
 from dcm.models.configuration import CheckpointKindError
 from dcm.models.dcm import DCM, ForceModel, read_checkpoint
+from dcm.models.nets import get_score_net_class
 from dcm.models.predict import checkpoint_kind
 
 log = logging.getLogger("dcm.train")
@@ -218,35 +220,52 @@ def planned_config(cfg: DictConfig) -> dict[str, Any]:
     return OmegaConf.to_container(planned)  # type: ignore[return-value]
 
 
-def with_added_model_defaults(saved: dict[str, Any], planned: dict[str, Any]) -> dict[str, Any]:
-    """``saved`` with the model options it predates filled in, where ``planned`` keeps their defaults.
+def option_defaults(group: str, planned: dict[str, Any]) -> dict[str, Any]:
+    """The defaults a checkpoint falls back on for options of config ``group`` (``model`` or ``net``) it lacks.
 
-    A checkpoint written before an option existed loads with the option's default
-    (``ForceModelConfig.from_kwargs``), so its run trained exactly that default. Without this, every option
-    added to the model would make every earlier run of a study "another config", finished or not.
+    ``model``: the fields of the model's config dataclass (``ForceModelConfig.from_kwargs`` fills them in).
+    ``net``: the keyword defaults of the score net's constructor (``build_score_net`` passes the rest through).
     """
-    config_cls = get_class(str(planned["model"]["_target_"])).config_cls
-    defaults = {f.name: f.default for f in dataclasses.fields(config_cls) if f.default is not dataclasses.MISSING}
-    model = dict(saved.get("model") or {})
-    for key, value in planned["model"].items():
-        if key not in model and key in defaults and defaults[key] == value:
-            model[key] = value
-    return {**saved, "model": model}
+    if group == "model":
+        config_cls = get_class(str(planned["model"]["_target_"])).config_cls
+        return {f.name: f.default for f in dataclasses.fields(config_cls) if f.default is not dataclasses.MISSING}
+    parameters = inspect.signature(get_score_net_class(str(planned["net"]["name"]))).parameters.values()
+    return {p.name: p.default for p in parameters if p.default is not inspect.Parameter.empty}
+
+
+def with_added_option_defaults(saved: dict[str, Any], planned: dict[str, Any]) -> dict[str, Any]:
+    """``saved`` with the model and net options it predates filled in, where ``planned`` keeps their defaults.
+
+    A checkpoint written before an option existed loads with the option's default, so its run trained exactly
+    that default. Without this, every option added to the model or the net would make every earlier run of a
+    study "another config", finished or not.
+    """
+    out = dict(saved)
+    for group in ("model", "net"):
+        if not isinstance(planned.get(group), dict):
+            continue
+        defaults = option_defaults(group, planned)
+        filled = dict(saved.get(group) or {})
+        for key, value in planned[group].items():
+            if key not in filled and key in defaults and defaults[key] == value:
+                filled[key] = value
+        out[group] = filled
+    return out
 
 
 def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
     """What an existing ``run_dir`` already holds, so a re-run sweep (same sweep dir) costs nothing.
 
     A finished run of the same config returns its summary.json; a killed one (last.ckpt, no summary) is
-    continued (sets ``cfg.resume``); a run of another config is refused, naming what differs (a model option
-    added since the run counts as the same while it keeps its default). A folder without checkpoints (a
+    continued (sets ``cfg.resume``); a run of another config is refused, naming what differs (a model or net
+    option added since the run counts as the same while it keeps its default). A folder without checkpoints (a
     run that failed before its first epoch) is simply reused.
     """
     saved, summary, last = run_dir / "config.yaml", run_dir / "summary.json", run_dir / "checkpoints" / "last.ckpt"
     if not saved.is_file() or not (summary.is_file() or last.is_file()):
         return None
     planned = planned_config(cfg)
-    old = with_added_model_defaults(OmegaConf.to_container(OmegaConf.load(saved)), planned)
+    old = with_added_option_defaults(OmegaConf.to_container(OmegaConf.load(saved)), planned)
     differs = config_diff(old, planned, ignore=("resume",))
     if differs:
         raise TrainConfigError(f"{run_dir} holds a run of another config ({'; '.join(differs)}); delete it or "

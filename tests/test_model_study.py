@@ -15,7 +15,7 @@ from dcm.model_study.__main__ import main as study_main
 from dcm.model_study.stats import welch_test
 
 sys.path.insert(0, str(REPO))
-from train import with_added_model_defaults  # noqa: E402 - train.py is a script at the repository root
+from train import with_added_option_defaults  # noqa: E402 - train.py is a script at the repository root
 
 # 2 settings x 2 seeds of the diffusion-steps study, 1 epoch each; T = 30 is the study's reference setting
 SWEEP = ["-m", "+experiment=diffusion_steps", "model.diffusion_steps=1,30", "seed=0,1"]
@@ -64,21 +64,23 @@ def test_rerun_skips_finished_runs_and_submitit_runs_the_new_ones(study: tuple[P
     assert len(new) == 1 and (new[0] / "summary.json").is_file()
 
 
-def test_a_run_older_than_a_model_option_is_reused_while_the_option_keeps_its_default(
+def test_a_run_older_than_a_model_or_net_option_is_reused_while_the_option_keeps_its_default(
         study: tuple[Path, list[str]]) -> None:
     root, args = study
     config = next((root / "sweep").glob("*diffusion_steps-30__*seed-0__*")) / "config.yaml"
     saved = OmegaConf.load(config)
-    del saved.model["cond_encoding"]  # as written before the option existed
+    del saved.model["cond_encoding"], saved.net["bidirectional"]  # as written before the options existed
     OmegaConf.save(saved, config)
     one_run = [a for a in args if a not in ("model.diffusion_steps=1,30", "seed=0,1")]
     proc = _run([*one_run, "model.diffusion_steps=30", "seed=0"], cwd=root)
     assert "with the same config (summary.json): skipped" in proc.stdout, proc.stdout[-2000:]
-    # the same old run asked for with the option away from its default is another config
+    # the same old run asked for with the options away from their defaults is another config
     planned = OmegaConf.to_container(saved)
     planned["model"] = {**planned["model"], "cond_encoding": "physical"}
-    old = with_added_model_defaults(OmegaConf.to_container(saved), planned)
-    assert config_diff(old, planned) == ["model.cond_encoding: (absent) -> physical"]
+    planned["net"] = {**planned["net"], "bidirectional": True}
+    old = with_added_option_defaults(OmegaConf.to_container(saved), planned)
+    assert config_diff(old, planned) == ["model.cond_encoding: (absent) -> physical",
+                                         "net.bidirectional: (absent) -> True"]
 
 
 def test_bad_sweep_dir_is_one_line_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
