@@ -47,7 +47,7 @@ from dcm.cli import check_accelerator, config_diff, load_json
 from dcm.data.datamodule import DCMDataModule
 from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
-from dcm.models.callbacks import ForceMetricsCallback, RunETACallback
+from dcm.models.callbacks import ForceMetricsCallback, RandomStateCallback, RunETACallback
 from dcm.models.configuration import CheckpointKindError
 from dcm.models.dcm import DCM, ForceModel, read_checkpoint
 from dcm.models.nets import get_score_net_class
@@ -174,7 +174,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
                                       every_n_epochs=1, save_on_train_epoch_end=True, enable_version_counter=False)
     callbacks = [ForceMetricsCallback(**OmegaConf.to_container(cfg.metrics, resolve=True)), checkpoint,
                  last_checkpoint,
-                 LearningRateMonitor(logging_interval="epoch"), RunETACallback()]
+                 LearningRateMonitor(logging_interval="epoch"), RunETACallback(), RandomStateCallback()]
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tb", version="", default_hp_metric=False)
     trainer_kwargs = OmegaConf.to_container(cfg.trainer, resolve=True)
     trainer = L.Trainer(default_root_dir=str(run_dir), logger=logger, callbacks=callbacks, **trainer_kwargs)

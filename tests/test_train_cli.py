@@ -88,6 +88,22 @@ def test_finetune_keeps_the_pretraining_normaliser_and_resume_continues(sweep: P
     assert resumed["global_step"] > steps_before and resumed["epoch"] == 1
 
 
+def test_a_killed_run_resumes_to_the_weights_of_an_uninterrupted_one(tiny_dataset_path: Path, tmp_path: Path) -> None:
+    """The DCM's training noise and the shuffle order continue from the checkpoint, not from the seed."""
+    import torch
+
+    common = ["data=path", f"data.path={tiny_dataset_path}", *[a for a in TINY if "max_epochs" not in a],
+              "model.lr_schedule=constant", "test_after_fit=false"]
+    _run([str(REPO / "train.py"), *common, "trainer.max_epochs=2", f"hydra.run.dir={tmp_path / 'whole'}"], cwd=tmp_path)
+    _run([str(REPO / "train.py"), *common, "trainer.max_epochs=1", f"hydra.run.dir={tmp_path / 'cut'}"], cwd=tmp_path)
+    _run([str(REPO / "train.py"), f"resume={tmp_path / 'cut'}", "trainer.max_epochs=2"], cwd=tmp_path)
+    whole, cut = (torch.load(tmp_path / run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
+                  for run in ("whole", "cut"))
+    assert cut["global_step"] == whole["global_step"] > 0
+    for key, value in whole["state_dict"].items():
+        assert torch.equal(value, cut["state_dict"][key]), key
+
+
 def test_bad_invocations_fail_with_clear_messages(sweep: Path, tiny_dataset_path: Path, tmp_path: Path) -> None:
     ckpt = next(sweep.glob("0_*/checkpoints/last.ckpt"))
     common = ["data=path", f"data.path={tiny_dataset_path}", *TINY, f"hydra.run.dir={tmp_path / 'bad'}"]

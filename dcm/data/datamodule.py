@@ -138,6 +138,9 @@ class DCMDataModule(L.LightningDataModule):
         self.cond_channels: list[str] = []
         self.target_channels: list[str] = []
         self.n_train_total = 0
+        # one shuffle stream for the whole fit; its state goes into checkpoints, so a resumed run shuffles its
+        # remaining epochs as the uninterrupted run would have
+        self.shuffle_generator = torch.Generator().manual_seed(self.seed)
 
     # ------------------------------------------------------------------ loading
     def _load(self, split: str) -> LoadedDataset:
@@ -193,7 +196,7 @@ class DCMDataModule(L.LightningDataModule):
 
     # ------------------------------------------------------------------ loaders
     def _loader(self, dataset: TrajectoryDataset, shuffle: bool, batch_size: int) -> DataLoader:
-        generator = torch.Generator().manual_seed(self.seed) if shuffle else None
+        generator = self.shuffle_generator if shuffle else None
         return DataLoader(dataset, batch_size=batch_size, shuffle=shuffle, num_workers=self.num_workers,
                           generator=generator, drop_last=False, persistent_workers=self.num_workers > 0)
 
@@ -209,7 +212,9 @@ class DCMDataModule(L.LightningDataModule):
     def state_dict(self) -> dict[str, Any]:
         return {"path": str(self.path), "stage": self.stage, "usage_rate": self.usage_rate, "seed": self.seed,
                 "n_train_used": len(self.splits["train"]) if "train" in self.splits else None,
-                "n_train_total": self.n_train_total}
+                "n_train_total": self.n_train_total, "shuffle_rng": self.shuffle_generator.get_state()}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        """Nothing to restore: the subset is a pure function of (file, usage_rate, seed)."""
+        """Restore the shuffle stream; the subset itself is a pure function of (file, usage_rate, seed)."""
+        if "shuffle_rng" in state_dict:  # absent in checkpoints written before it was saved
+            self.shuffle_generator.set_state(state_dict["shuffle_rng"])

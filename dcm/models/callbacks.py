@@ -204,3 +204,32 @@ class RunETACallback(Callback):
                 remaining = min(remaining, float(time_left()))
         if math.isfinite(remaining):
             pl_module.log("eta_min", remaining / 60.0, prog_bar=True, on_epoch=True, on_step=False)
+
+
+class RandomStateCallback(Callback):
+    """Saves torch's global random state in every checkpoint and restores it when a killed run resumes.
+
+    The DCM draws its training noise and timesteps from the global generator, so without this the epochs
+    after a resume would see other noise than the uninterrupted run and end elsewhere. The state is applied
+    at the first training epoch after the resume, after the sanity check has drawn what it draws.
+    """
+
+    def __init__(self) -> None:
+        self._restored: dict[str, Any] | None = None
+
+    def state_dict(self) -> dict[str, Any]:
+        state: dict[str, Any] = {"torch": torch.get_rng_state()}
+        if torch.cuda.is_available():
+            state["cuda"] = torch.cuda.get_rng_state_all()
+        return state
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._restored = state_dict
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self._restored is None:
+            return
+        torch.set_rng_state(self._restored["torch"])
+        if len(self._restored.get("cuda", [])) == torch.cuda.device_count() > 0:  # same GPUs as when saved
+            torch.cuda.set_rng_state_all(self._restored["cuda"])
+        self._restored = None
