@@ -258,7 +258,7 @@ def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
 
     A finished run of the same config returns its summary.json; a killed one (last.ckpt, no summary) is
     continued (sets ``cfg.resume``); a run of another config is refused, naming what differs (a model or net
-    option added since the run counts as the same while it keeps its default). A folder without checkpoints (a
+    option added since the run counts as the same while it keeps its default; an edited ``study`` block too). A folder without checkpoints (a
     run that failed before its first epoch) is simply reused.
     """
     saved, summary, last = run_dir / "config.yaml", run_dir / "summary.json", run_dir / "checkpoints" / "last.ckpt"
@@ -266,7 +266,7 @@ def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
         return None
     planned = planned_config(cfg)
     old = with_added_option_defaults(OmegaConf.to_container(OmegaConf.load(saved)), planned)
-    differs = config_diff(old, planned, ignore=("resume",))
+    differs = config_diff(old, planned, ignore=("resume", "study"))  # the study block says how to report, not train
     if differs:
         raise TrainConfigError(f"{run_dir} holds a run of another config ({'; '.join(differs)}); delete it or "
                                "choose another hydra.run.dir / hydra.sweep.dir")

@@ -52,7 +52,9 @@ def test_report_aggregates_seeds_beside_references_with_tests(study: tuple[Path,
 def test_rerun_skips_finished_runs_and_submitit_runs_the_new_ones(study: tuple[Path, list[str]]) -> None:
     root, args = study
     before = {p: p.stat().st_mtime_ns for p in (root / "sweep").glob("*/checkpoints/last.ckpt")}
-    proc = _run(args, cwd=root)
+    for saved in (root / "sweep").glob("*/config.yaml"):  # runs launched before the study block was edited
+        saved.write_text(saved.read_text().replace("title: ", "title: Before an edit, "))
+    proc = _run(args, cwd=root)  # the study block says how to report, not what to train
     assert proc.stdout.count("with the same config (summary.json): skipped") == 4, proc.stdout[-2000:]
     # extend the sweep by T = 2 with the submitit launcher's local executor: T = 1 is skipped, T = 2 trains
     extended = [a if a != "model.diffusion_steps=1,30" else "model.diffusion_steps=1,2" for a in args]
@@ -147,3 +149,40 @@ def test_the_figure_draws_a_numeric_sweep_in_x_order(tmp_path: Path, monkeypatch
              "cells": cells, "splits": {"valid": {}}, "references": {}}
     figure(study, tmp_path / "study.png")
     assert drawn == [[1, 5, 30, 100]] and (tmp_path / "study.png").is_file()
+
+
+def test_a_study_tests_along_each_of_its_comparisons_and_takes_the_newest_runs_spec(tmp_path: Path) -> None:
+    """The score-net study tests every net against the RetNet and, per net, the DCM against the baseline; a
+    run launched after the experiment's study block gained the second comparison carries it."""
+    import os
+
+    import yaml
+
+    from dcm.model_study.collect import compare, make_cells
+    from dcm.model_study.runs import read_run, setting_keys, study_spec
+
+    old = {"name": "nets", "title": "", "x": "net", "series": None, "compare": {"key": "net", "against": "retnet"}}
+    new = {**old, "series": "model", "compare": [{"key": "net", "against": "retnet"},
+                                                 {"key": "model", "against": "baseline"}]}
+    settings = [("dcm", "retnet", old), ("dcm", "unet1d", old), ("baseline", "unet1d", new)]
+    runs = []
+    for i, (model, net, block) in enumerate(settings * 2):
+        seed = i // len(settings)
+        path = tmp_path / f"{model}-{net}-{seed}"
+        (path / ".hydra").mkdir(parents=True)
+        overrides = [f"net={net}", f"seed={seed}"] + (["model=baseline"] if model == "baseline" else [])
+        (path / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+        (path / ".hydra" / "hydra.yaml").write_text(
+            yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": model, "net": net}}}}))
+        (path / "config.yaml").write_text(yaml.safe_dump({"seed": seed, "study": block}))
+        os.utime(path / "config.yaml", ns=(i, i))  # launched in this order, the baseline runs last
+        runs.append(read_run(path))
+    spec = study_spec(runs)
+    assert spec.series == "model" and spec.comparisons == (("net", "retnet"), ("model", "baseline"))
+    keys = setting_keys(spec, runs)
+    cells = make_cells(runs, keys, spec)
+    for cell in cells:
+        cell.scores["valid"] = [{"R_within": 0.5 + 0.01 * r.seed} for r in cell.runs]
+    tests = {(t["cell"], t["against"]) for t in compare(cells, spec, ["valid"], keys)}
+    assert tests == {("model=dcm, net=unet1d", "model=dcm, net=retnet"),
+                     ("model=dcm, net=unet1d", "model=baseline, net=unet1d")}

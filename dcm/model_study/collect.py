@@ -69,8 +69,12 @@ def make_cells(runs: list[Run], keys: list[str], spec: StudySpec) -> list[Cell]:
     for cell in cells.values():
         cell.runs.sort(key=lambda r: r.seed)
 
+    first = {}
+    for key, against in spec.comparisons:
+        first.setdefault(key, against)
+
     def order(cell: Cell) -> tuple:
-        return tuple(_order(cell.values[k], spec.against if k == spec.compare_key else None) for k in keys)
+        return tuple(_order(cell.values[k], first.get(k)) for k in keys)
 
     return sorted(cells.values(), key=order)
 
@@ -103,23 +107,24 @@ def references(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def compare(cells: list[Cell], spec: StudySpec, splits: list[str], keys: list[str]) -> list[dict[str, Any]]:
-    """Welch's t-test of every cell against the cell that differs only in ``spec.compare_key`` = against."""
-    if not spec.compare_key or spec.compare_key not in keys:
-        return []
+    """Welch's t-tests, per comparison (key, against): every cell against the cell that differs only in key."""
     by_values = {tuple(str(c.values[k]) for k in keys): c for c in cells}
     tests = []
-    for cell in cells:
-        if str(cell.values[spec.compare_key]) == str(spec.against):
+    for compare_key, against in spec.comparisons:
+        if compare_key not in keys:
             continue
-        partner_key = tuple(str(spec.against) if k == spec.compare_key else str(cell.values[k]) for k in keys)
-        partner = by_values.get(partner_key)
-        if partner is None:
-            continue
-        for split in splits:
-            for metric in spec.metrics:
-                test = welch_test([s.get(metric) for s in cell.scores.get(split, [])],
-                                  [s.get(metric) for s in partner.scores.get(split, [])])
-                tests.append({"split": split, "metric": metric, "cell": cell.label, "against": partner.label, **test})
+        for cell in cells:
+            if str(cell.values[compare_key]) == str(against):
+                continue
+            partner = by_values.get(tuple(str(against) if k == compare_key else str(cell.values[k]) for k in keys))
+            if partner is None:
+                continue
+            for split in splits:
+                for metric in spec.metrics:
+                    test = welch_test([s.get(metric) for s in cell.scores.get(split, [])],
+                                      [s.get(metric) for s in partner.scores.get(split, [])])
+                    tests.append({"split": split, "metric": metric, "cell": cell.label, "against": partner.label,
+                                  **test})
     return tests
 
 

@@ -60,8 +60,8 @@ class StudySpec:
     x: str
     series: str | None = None
     log_x: bool = False
-    compare_key: str | None = None
-    against: Any = None
+    # Welch tests to run: (key, against) pairs, each cell tested against the cell that differs only in key
+    comparisons: tuple[tuple[str, Any], ...] = ()
     metrics: tuple[str, ...] = DEFAULT_METRICS
     evaluate_init: bool = False
 
@@ -104,8 +104,12 @@ def find_runs(sweep_dir: Path) -> list[Run]:
 
 
 def study_spec(runs: list[Run]) -> StudySpec:
-    """The spec saved in the runs' config; a plain sweep without one plots its first varying override."""
-    block = next((r.config["study"] for r in runs if isinstance(r.config.get("study"), dict)), None)
+    """The spec saved in the runs' config; a plain sweep without one plots its first varying override.
+
+    Runs launched before the experiment's ``study:`` block was edited keep the old one; the newest run's wins."""
+    with_block = [r for r in runs if isinstance(r.config.get("study"), dict)]
+    newest = max(with_block, key=lambda r: (r.path / "config.yaml").stat().st_mtime_ns, default=None)
+    block = newest.config["study"] if newest else None
     if block is None:
         varying = varying_keys(runs)
         if not varying:
@@ -113,10 +117,14 @@ def study_spec(runs: list[Run]) -> StudySpec:
                              "besides the seed: nothing to compare")
         return StudySpec(name=runs[0].path.parent.name, title=f"Sweep over {', '.join(varying)}", x=varying[0],
                          series=varying[1] if len(varying) > 1 else None)
-    compare = block.get("compare") or {}
+    compare = block.get("compare") or []
+    compare = [compare] if isinstance(compare, dict) else compare
+    if not all(isinstance(c, dict) and "key" in c and "against" in c for c in compare):
+        raise StudyError(f"{runs[0].path / 'config.yaml'}: study.compare must be {{key: ..., against: ...}} or a "
+                         f"list of them, got {block.get('compare')!r}")
     return StudySpec(name=str(block.get("name", runs[0].path.parent.name)), title=str(block.get("title", "")),
                      x=str(block["x"]), series=block.get("series"), log_x=bool(block.get("log_x", False)),
-                     compare_key=compare.get("key"), against=compare.get("against"),
+                     comparisons=tuple((str(c["key"]), c["against"]) for c in compare),
                      metrics=tuple(block.get("metrics") or DEFAULT_METRICS),
                      evaluate_init=bool(block.get("evaluate_init", False)))
 
