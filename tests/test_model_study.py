@@ -150,6 +150,16 @@ def test_the_figure_draws_a_numeric_sweep_in_x_order(tmp_path: Path, monkeypatch
     figure(study, tmp_path / "study.png")
     assert drawn == [[1, 5, 30, 100]] and (tmp_path / "study.png").is_file()
 
+    # categorical x, two series: the reference net first on the axis, each series' line in axis order
+    drawn.clear()
+    cells = [{"values": {"model": m, "net": n}, "summary": {"valid": summary}}
+             for m, n in (("baseline", "unet1d"), ("dcm", "retnet"), ("dcm", "lstm"), ("dcm", "unet1d"))]
+    study["study"] = {**study["study"], "x": "net", "series": "model", "log_x": False,
+                      "comparisons": [["net", "retnet"], ["model", "baseline"]]}
+    study["cells"] = cells
+    figure(study, tmp_path / "study.png")
+    assert drawn == [[1.0], [0.08, 1.08, 2.08]]  # axis: retnet, unet1d, lstm (cell order after the reference)
+
 
 def test_a_study_tests_along_each_of_its_comparisons_and_takes_the_newest_runs_spec(tmp_path: Path) -> None:
     """The score-net study tests every net against the RetNet and, per net, the DCM against the baseline; a

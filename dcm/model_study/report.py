@@ -87,9 +87,12 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
     return "\n".join(lines)
 
 
-def _x_values(cells: list[dict[str, Any]], key: str) -> tuple[list[Any], bool]:
-    """The distinct x values in cell order, and whether they are all numbers."""
+def _x_values(cells: list[dict[str, Any]], spec: dict[str, Any]) -> tuple[list[Any], bool]:
+    """The distinct x values in cell order (the x comparison's reference first), and whether all are numbers."""
+    key = spec["x"]
     xs = list(dict.fromkeys(c["values"][key] for c in cells))
+    against = next((str(a) for k, a in spec.get("comparisons") or () if k == key), None)
+    xs.sort(key=lambda x: str(x) != against)  # stable: the rest keep their order
     numeric = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in xs)
     return xs, numeric
 
@@ -102,7 +105,7 @@ def figure(study: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     spec, cells, metrics, splits = study["study"], study["cells"], study["study"]["metrics"], list(study["splits"])
-    xs, numeric = _x_values(cells, spec["x"])
+    xs, numeric = _x_values(cells, spec)
     series = list(dict.fromkeys(c["values"].get(spec["series"]) if spec["series"] else None for c in cells))
     fig, axes = plt.subplots(len(splits), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(splits)),
                              squeeze=False)
@@ -113,8 +116,8 @@ def figure(study: dict[str, Any], path: Path) -> None:
                 members = [c for c in cells if not spec["series"] or c["values"].get(spec["series"]) == name]
                 points = [(c["values"][spec["x"]], c["summary"][split][metric]) for c in members]
                 points = [(x, s) for x, s in points if _num(s["mean"]) is not None]
-                if numeric:  # a line in x order, whatever the cell order (the compared-against cell comes first)
-                    points.sort(key=lambda point: point[0])
+                # a line in axis order, whatever the cell order (the compared-against cell comes first)
+                points.sort(key=lambda point: point[0] if numeric else xs.index(point[0]))
                 if not points:
                     continue
                 pos = [x if numeric else xs.index(x) + 0.08 * s_index for x, _ in points]
