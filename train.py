@@ -258,8 +258,8 @@ def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
 
     A finished run of the same config returns its summary.json; a killed one (last.ckpt, no summary) is
     continued (sets ``cfg.resume``); a run of another config is refused, naming what differs (a model or net
-    option added since the run counts as the same while it keeps its default; an edited ``study`` block too). A folder without checkpoints (a
-    run that failed before its first epoch) is simply reused.
+    option added since the run counts as the same while it keeps its default; so does an edited ``study``
+    block). A folder without checkpoints (a run that failed before its first epoch) is simply reused.
     """
     saved, summary, last = run_dir / "config.yaml", run_dir / "summary.json", run_dir / "checkpoints" / "last.ckpt"
     if not saved.is_file() or not (summary.is_file() or last.is_file()):

@@ -169,7 +169,7 @@ def test_a_study_tests_along_each_of_its_comparisons_and_takes_the_newest_runs_s
     import yaml
 
     from dcm.model_study.collect import compare, make_cells
-    from dcm.model_study.runs import read_run, setting_keys, study_spec
+    from dcm.model_study.runs import StudyError, read_run, setting_keys, study_spec
 
     old = {"name": "nets", "title": "", "x": "net", "series": None, "compare": {"key": "net", "against": "retnet"}}
     new = {**old, "series": "model", "compare": [{"key": "net", "against": "retnet"},
@@ -196,3 +196,6 @@ def test_a_study_tests_along_each_of_its_comparisons_and_takes_the_newest_runs_s
     tests = {(t["cell"], t["against"]) for t in compare(cells, spec, ["valid"], keys)}
     assert tests == {("model=dcm, net=unet1d", "model=dcm, net=retnet"),
                      ("model=dcm, net=unet1d", "model=baseline, net=unet1d")}
+    runs[-1].config["study"]["compare"] = "model"  # neither {key, against} nor a list of them
+    with pytest.raises(StudyError, match=r"config.yaml: study.compare must be"):
+        study_spec(runs)

@@ -69,7 +69,7 @@ def make_cells(runs: list[Run], keys: list[str], spec: StudySpec) -> list[Cell]:
     for cell in cells.values():
         cell.runs.sort(key=lambda r: r.seed)
 
-    first = {}
+    first: dict[str, Any] = {}  # per key, the value its first comparison tests against
     for key, against in spec.comparisons:
         first.setdefault(key, against)
 
