@@ -197,5 +197,5 @@ def test_a_study_tests_along_each_of_its_comparisons_and_takes_the_newest_runs_s
     assert tests == {("model=dcm, net=unet1d", "model=dcm, net=retnet"),
                      ("model=dcm, net=unet1d", "model=baseline, net=unet1d")}
     runs[-1].config["study"]["compare"] = "model"  # neither {key, against} nor a list of them
-    with pytest.raises(StudyError, match=r"config.yaml: study.compare must be"):
+    with pytest.raises(StudyError, match=rf"{runs[-1].path.name}/config.yaml: study.compare must be"):
         study_spec(runs)

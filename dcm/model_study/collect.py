@@ -20,7 +20,8 @@ import yaml
 
 from dcm.cli import flatten
 from dcm.model_study.matched_ridge import USAGE_RATE, matched_ridge_runs
-from dcm.model_study.runs import Run, StudyError, StudySpec, find_runs, init_runs, setting_keys, study_spec
+from dcm.model_study.runs import (Run, StudyError, StudySpec, find_runs, init_runs, reference_values, setting_keys,
+                                  study_spec)
 from dcm.model_study.stats import describe, welch_test
 from dcm.model_table import COLUMNS, cached_eval
 
@@ -69,9 +70,7 @@ def make_cells(runs: list[Run], keys: list[str], spec: StudySpec) -> list[Cell]:
     for cell in cells.values():
         cell.runs.sort(key=lambda r: r.seed)
 
-    first: dict[str, Any] = {}  # per key, the value its first comparison tests against
-    for key, against in spec.comparisons:
-        first.setdefault(key, against)
+    first = reference_values(spec.comparisons)
 
     def order(cell: Cell) -> tuple:
         return tuple(_order(cell.values[k], first.get(k)) for k in keys)

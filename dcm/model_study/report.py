@@ -9,6 +9,7 @@ from typing import Any
 
 import yaml
 
+from dcm.model_study.runs import reference_values
 from dcm.model_study.stats import ALPHA, p_text
 from dcm.models.references import STIFFNESS_RIDGE
 
@@ -91,8 +92,8 @@ def _x_values(cells: list[dict[str, Any]], spec: dict[str, Any]) -> tuple[list[A
     """The distinct x values in cell order (the x comparison's reference first), and whether all are numbers."""
     key = spec["x"]
     xs = list(dict.fromkeys(c["values"][key] for c in cells))
-    against = next((str(a) for k, a in spec.get("comparisons") or () if k == key), None)
-    xs.sort(key=lambda x: str(x) != against)  # stable: the rest keep their order
+    against = reference_values(spec.get("comparisons") or ()).get(key)
+    xs.sort(key=lambda x: against is None or str(x) != str(against))  # stable: the rest keep their order
     numeric = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in xs)
     return xs, numeric
 

@@ -120,13 +120,21 @@ def study_spec(runs: list[Run]) -> StudySpec:
     compare = block.get("compare") or []
     compare = [compare] if isinstance(compare, dict) else compare
     if not all(isinstance(c, dict) and "key" in c and "against" in c for c in compare):
-        raise StudyError(f"{runs[0].path / 'config.yaml'}: study.compare must be {{key: ..., against: ...}} or a "
+        raise StudyError(f"{newest.path / 'config.yaml'}: study.compare must be {{key: ..., against: ...}} or a "
                          f"list of them, got {block.get('compare')!r}")
     return StudySpec(name=str(block.get("name", runs[0].path.parent.name)), title=str(block.get("title", "")),
                      x=str(block["x"]), series=block.get("series"), log_x=bool(block.get("log_x", False)),
                      comparisons=tuple((str(c["key"]), c["against"]) for c in compare),
                      metrics=tuple(block.get("metrics") or DEFAULT_METRICS),
                      evaluate_init=bool(block.get("evaluate_init", False)))
+
+
+def reference_values(comparisons: Any) -> dict[str, Any]:
+    """Per compared key, the value its first comparison tests against (drawn and listed first)."""
+    first: dict[str, Any] = {}
+    for key, against in comparisons:
+        first.setdefault(key, against)
+    return first
 
 
 def varying_keys(runs: list[Run]) -> list[str]:
