@@ -23,6 +23,7 @@ import argparse
 import json
 import time
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -137,12 +138,32 @@ def plot(skills: dict[str, dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
+def preset_skills(dataset: str, splits: list[str], seed: int, max_skills: int | None, error: Callable[[str], Any],
+                  overrides: dict[str, Any] | None = None) -> tuple[dict[str, Any], list[Any]]:
+    """The preset ``conf/dataset/<dataset>.yaml`` as generation sees it (plus ``overrides``) and the demo
+    jobs of its skills whose first trial split is in ``splits`` (the first ``max_skills``); ``error`` is
+    called with a message naming the preset when there is none."""
+    from omegaconf import OmegaConf
+
+    from dcm.data.generate import compose_config
+    from dcm.data.presets import plan_demos
+
+    preset_file = CONF_DIR / "dataset" / f"{dataset}.yaml"
+    if not preset_file.is_file():
+        error(f"--dataset {dataset!r}: no preset file {preset_file}")
+    preset = {**OmegaConf.to_container(compose_config(dataset).dataset, resolve=True), **(overrides or {})}
+    jobs = [j for j in plan_demos(preset, seed) if j.trial_splits[0] in splits]
+    if max_skills:
+        jobs = jobs[:max_skills]
+    if not jobs:
+        error(f"preset {dataset!r} has no skills in splits {splits}")
+    return preset, jobs
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     from omegaconf import OmegaConf
     from tqdm import tqdm
 
-    from dcm.data.generate import compose_config
-    from dcm.data.presets import plan_demos
     from dcm.sim.demos import DemoSpec
     from dcm.sim.domain import DomainSpec
     from dcm.sim.rollout import Simulator
@@ -160,20 +181,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--out", default="reports/task_check")
     args = parser.parse_args(argv)
 
-    preset_file = CONF_DIR / "dataset" / f"{args.dataset}.yaml"
-    if not preset_file.is_file():
-        parser.error(f"--dataset {args.dataset!r}: no preset file {preset_file}")
-    preset = OmegaConf.to_container(compose_config(args.dataset).dataset, resolve=True)  # as generation sees it
-    if args.duration is not None:
-        preset["duration_s"] = args.duration
+    overrides = {"duration_s": args.duration} if args.duration is not None else {}
     if args.demo_lead:
-        preset["demo_lead"] = True
+        overrides["demo_lead"] = True
+    preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error, overrides)
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
-    jobs = [j for j in plan_demos(preset, args.seed) if j.trial_splits[0] in args.splits]
-    if args.max_skills:
-        jobs = jobs[: args.max_skills]
-    if not jobs:
-        parser.error(f"preset {args.dataset!r} has no skills in splits {args.splits}")
     embodiment = args.embodiment or preset["embodiment"]
     sims: dict[str, Simulator] = {}
     rng = np.random.default_rng(args.seed)

@@ -8,7 +8,7 @@ transfer can be studied without a robot.
 Who applies what: the embodiment applies the physical parts when it builds its MuJoCo model
 (``friction_scale``, ``solref_timeconst_scale``, ``joint_frictionloss``, ``joint_damping``,
 ``tool_mass_scale``); the ``Simulator`` applies sensing (``ft_bias``, ``ft_noise_std``, ``ft_lowpass_hz``)
-and ``latency_steps``.
+and ``latency_steps``, and draws each rollout's ``bowl_offset_std_m`` (the bowl re-placed between trials).
 """
 
 from __future__ import annotations
@@ -39,7 +39,11 @@ class DomainSpec(SpecIO):
     Units: ``joint_frictionloss`` in N (slide joints) or N·m (revolute joints); ``joint_damping`` in
     N·s/m or N·m·s/rad; ``ft_bias`` and ``ft_noise_std`` per wrench channel [N, N, N, N·m, N·m, N·m];
     ``ft_lowpass_hz`` is the cut-off of a first-order filter applied at the control rate (0 = off);
-    ``latency_steps`` delays attractor and stiffness commands by whole control periods.
+    ``latency_steps`` delays attractor and stiffness commands by whole control periods;
+    ``bowl_offset_std_m`` [m] is the spread of the bowl's height from one rollout to the next (the bowl is
+    re-placed between trials; the demo and the attractor know only where it stood when the demo was recorded).
+    It is the one perturbation that differs between rollouts of the same inputs, so the force is a
+    distribution given the model's conditions, and its spread grows with stiffness.
     """
 
     spec_kind: ClassVar[str] = "domain"
@@ -55,6 +59,7 @@ class DomainSpec(SpecIO):
     ft_noise_std: tuple[float, ...] = (0.0,) * 6
     ft_lowpass_hz: float = 0.0
     latency_steps: int = 0
+    bowl_offset_std_m: float = 0.0
 
     def __post_init__(self) -> None:
         self.ft_bias = _vec6(self.ft_bias, "ft_bias")
@@ -70,6 +75,7 @@ class DomainSpec(SpecIO):
             "tool_mass_scale": (self.tool_mass_scale, 0.1, 10.0),
             "ft_lowpass_hz": (self.ft_lowpass_hz, 0.0, 1e4),
             "latency_steps": (self.latency_steps, 0, 20),
+            "bowl_offset_std_m": (self.bowl_offset_std_m, 0.0, 0.02),
         }
         for key, (value, low, high) in checks.items():
             if not np.isfinite(value) or not (low <= value <= high):
@@ -84,7 +90,11 @@ class DomainSpec(SpecIO):
         return any(self.ft_bias) or any(self.ft_noise_std) or self.ft_lowpass_hz > 0
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as plain values. ``bowl_offset_std_m`` is left out while it is 0, so that datasets and
+        tuning logs written before the field existed keep their fingerprints."""
         out = asdict(self)
+        if not self.bowl_offset_std_m:
+            del out["bowl_offset_std_m"]
         out["ft_bias"] = list(self.ft_bias)
         out["ft_noise_std"] = list(self.ft_noise_std)
         return out

@@ -8,8 +8,9 @@ Timing: ``control_hz = 20`` by default (``dt = 0.05 s``, 25 physics substeps of 
 gives ``H = 160`` control steps. Step ``k`` applies command ``k`` for one period and records the state at
 its end.
 
-Determinism: sensor noise is drawn from a generator seeded by the simulator seed and a hash of the inputs,
-so the same inputs give identical arrays, whatever ran before.
+Determinism: sensor noise and the bowl's offset (``DomainSpec.bowl_offset_std_m``) are drawn from a
+generator seeded by the simulator seed and a hash of the inputs, so the same inputs give identical arrays,
+whatever ran before; another simulator seed gives another draw.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ import importlib
 import json
 import math
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,6 +40,7 @@ from dcm.sim.demos import Demo, DemoSpec
 from dcm.sim.domain import DomainSpec
 from dcm.sim.embodiment import PHYSICS_DT_S, Embodiment
 from dcm.sim.geometry import BowlSpec
+from dcm.sim.scene import BOWL_GEOM
 
 EMBODIMENTS: dict[str, str] = {
     "tool": "dcm.sim.tool:ToolEmbodiment",
@@ -92,6 +96,7 @@ class Trial:
     failure_reason: str = ""
     stiffness_applied: np.ndarray | None = None  # after low-pass filtering, what the controller used
     failed_step: int = -1
+    bowl_offset_m: float = 0.0  # how far the bowl stood above where the demo had it (domain.bowl_offset_std_m)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -119,6 +124,25 @@ class DivergenceBounds:
     max_force_N: float = 300.0  # contact force norm; the reference saw >100 N spikes only when unstable
     max_above_surface_m: float = 0.15  # the tool flew off
     max_below_surface_m: float = 0.04  # the tool tunnelled into the bowl
+
+
+@contextmanager
+def _bowl_raised(emb: Embodiment, offset_m: float) -> Iterator[None]:
+    """Raise the bowl geom by ``offset_m`` for one rollout. Poses and divergence checks stay in the nominal
+    bowl frame, as the controller believes it to be."""
+    if not offset_m:
+        yield
+        return
+    model = emb.model
+    geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, BOWL_GEOM)
+    nominal_z, sameframe = float(model.geom_pos[geom, 2]), int(model.geom_sameframe[geom])
+    model.geom_sameframe[geom] = 0  # a geom compiled at its body's frame ignores geom_pos otherwise
+    model.geom_pos[geom, 2] = nominal_z + offset_m
+    try:
+        yield
+    finally:
+        model.geom_pos[geom, 2] = nominal_z
+        model.geom_sameframe[geom] = sameframe
 
 
 class Simulator:
@@ -230,7 +254,10 @@ class Simulator:
         start = demo.start_pose if demo.start_pose is not None else demo.spec.start_pose(self.control_hz)
         emb = self.embodiment_for(demo.spec.bowl)
         digest = (x_demo.tobytes(), force_demo.tobytes(), stiffness.tobytes())
-        run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, self._rng("rollout", *digest))
+        rng = self._rng("rollout", *digest)
+        offset = float(rng.normal(0.0, self.domain.bowl_offset_std_m)) if self.domain.bowl_offset_std_m else 0.0
+        with _bowl_raised(emb, offset):
+            run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng)
         if run.failed:
             l_task = float("inf")
         else:
@@ -249,6 +276,7 @@ class Simulator:
             failure_reason=run.reason,
             stiffness_applied=applied,
             failed_step=run.failed_step,
+            bowl_offset_m=offset,
         )
 
     def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:

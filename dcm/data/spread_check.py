@@ -1,0 +1,148 @@
+"""Can a model of the force *distribution* rank a skill's schedules better than a model of its *mean*?
+
+    python -m dcm.data.spread_check --dataset sim_contact --bowl-offset-mm 0 2 4 --out reports/spread_check
+
+The paper's case for a diffusion model is that contact is uncertain: the same inputs give different forces.
+This check asks, with the simulator as an oracle, how much that can be worth on the tuner's question. For
+every skill of the chosen splits it records the demo once and draws random per-phase schedules (the search
+space of ``conf/stiffness/default.yaml``). Each schedule is rolled out ``1 + 2k`` times with different
+simulator seeds, i.e. different draws of the domain's per-rollout perturbation (``bowl_offset_std_m``):
+
+* rollout 0 is the **label**, one realisation as a dataset holds it;
+* rollouts ``1..k`` stand in for a perfect **diffusion model** drawing k samples: ``L_task`` averaged over
+  them (``distribution_k``), or of the first one alone (``distribution_1``);
+* the mean force over rollouts ``k+1..2k`` stands in for a perfect **single-pass model**, which learns the
+  conditional mean of the force: ``L_task`` of that mean (``mean_force``).
+
+Each is correlated with the label within each skill (Pearson, averaged over skills, as ``R_within``). With
+no per-rollout perturbation every rollout is the same, so all three rank perfectly (R = 1): the known
+answer. The gap between ``distribution_k`` and ``mean_force`` is the most a distribution model can gain
+over a mean model in ranking, before either has to learn anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dcm.control import equal_time_phases, schedule_from_phases, task_loss
+from dcm.data.task_check import CONF_DIR, preset_skills
+
+PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
+
+
+def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int) -> dict[str, float]:
+    """The label and each oracle predictor's L_task from ``forces`` (1 + 2k, H, 6): rollout 0 is the label,
+    rollouts ``1..k`` the distribution model's samples, ``k+1..2k`` what the mean model averages."""
+    if forces.shape[0] != 1 + 2 * k:
+        raise ValueError(f"need 1 + 2k = {1 + 2 * k} rollouts, got {forces.shape[0]}")
+    per_rollout = task_loss(forces, force_demo[None])
+    return {
+        "label": float(per_rollout[0]),
+        "distribution_1": float(per_rollout[1]),
+        "distribution_k": float(per_rollout[1:k + 1].mean()),
+        "mean_force": float(task_loss(forces[k + 1:].mean(0), force_demo)),
+    }
+
+
+def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str) -> float:
+    """Pearson R between a predictor's and the label's L_task over each skill's schedules, averaged."""
+    rs = []
+    for rows in skills.values():
+        pred = np.array([r[predictor] for r in rows])
+        label = np.array([r["label"] for r in rows])
+        if pred.std() == 0 and label.std() == 0:
+            rs.append(1.0)  # a skill whose schedules all tie: nothing to rank, nothing ranked wrong
+        else:
+            rs.append(float(np.corrcoef(pred, label)[0, 1]))
+    return float(np.mean(rs))
+
+
+def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
+                rng: np.random.Generator) -> list[dict[str, float]]:
+    """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 1 + 2k
+    simulators that differ only in their seed."""
+    demo = sims[0].record_demo(spec)
+    bounds = equal_time_phases(demo.horizon, 3)
+    low, high = float(space["min_Npm"]), float(space["max_Npm"])
+    rows = []
+    for _ in range(n_schedules):
+        schedule = schedule_from_phases(rng.uniform(low, high, size=(3, 3)), bounds, float(space["rot_Nmprad"]))
+        trials = [sim.rollout(demo, schedule) for sim in sims]
+        if any(t.failed for t in trials):
+            continue
+        forces = np.stack([t.force_obs for t in trials])
+        rows.append({**oracle_losses(forces, np.asarray(demo.force_demo), k),
+                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials]) * 1000)})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    from omegaconf import OmegaConf
+    from tqdm import tqdm
+
+    from dcm.sim.demos import DemoSpec
+    from dcm.sim.domain import DomainSpec
+    from dcm.sim.rollout import Simulator
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--dataset", default="sim_contact", help="preset in conf/dataset/")
+    parser.add_argument("--splits", nargs="+", default=["valid"])
+    parser.add_argument("--max-skills", type=int, default=4, help="first N skills of the chosen splits")
+    parser.add_argument("--n-schedules", type=int, default=16, help="random schedules per skill")
+    parser.add_argument("--k", type=int, default=4, help="samples the distribution model draws")
+    parser.add_argument("--bowl-offset-mm", type=float, nargs="+", default=[0.0, 2.0, 4.0],
+                        help="per-rollout bowl height spread(s) to compare [mm]")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default="reports/spread_check")
+    args = parser.parse_args(argv)
+    if args.k < 1 or args.n_schedules < 3:
+        parser.error(f"--k {args.k} must be >= 1 and --n-schedules {args.n_schedules} >= 3")
+
+    preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error)
+    space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
+    domain = DomainSpec.resolve(preset["domain"]).to_dict()
+    results: dict[str, Any] = {}
+    start = time.perf_counter()
+    bar = tqdm(total=len(args.bowl_offset_mm) * len(jobs), desc="spread check", unit="skill")
+    for offset_mm in args.bowl_offset_mm:
+        skill_domain = DomainSpec.from_dict({**domain, "bowl_offset_std_m": offset_mm / 1000.0})
+        rng = np.random.default_rng(args.seed)  # the same schedules at every spread
+        skills: dict[str, list[dict[str, float]]] = {}
+        for job in jobs:
+            spec = DemoSpec.from_dict(job.spec, where=f"{args.dataset} skill {job.index}")
+            sims = [Simulator(preset["embodiment"], spec.bowl, skill_domain, seed=args.seed + i,
+                              damping=space["damping"]) for i in range(1 + 2 * args.k)]
+            skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng)
+            bar.update()
+        label = np.array([r["label"] for rows in skills.values() for r in rows])
+        results[f"{offset_mm:g}"] = {
+            "bowl_offset_std_mm": offset_mm,
+            "R_within": {p: within_skill_r(skills, p) for p in PREDICTORS},
+            "L_task_label_median": float(np.median(label)),
+            "skills": skills,
+        }
+    bar.close()
+    out = {"dataset": args.dataset, "splits": args.splits, "embodiment": preset["embodiment"], "k": args.k,
+           "n_schedules": args.n_schedules, "seed": args.seed, "seconds": time.perf_counter() - start,
+           "by_offset_mm": results}
+    path = Path(args.out)
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "spread_check.json").write_text(json.dumps(out, indent=1))
+    print(f"R_within against one labelled rollout ({len(jobs)} skills, {args.n_schedules} schedules each, k = {args.k})")
+    print("bowl offset std [mm] | " + " | ".join(PREDICTORS) + " | median label L_task [N]")
+    for row in results.values():
+        r = row["R_within"]
+        print(f"{row['bowl_offset_std_mm']:g} | " + " | ".join(f"{r[p]:.3f}" for p in PREDICTORS)
+              + f" | {row['L_task_label_median']:.2f}")
+    print(f"wrote {path / 'spread_check.json'} in {out['seconds']:.0f} s")
+    return out
+
+
+if __name__ == "__main__":
+    main()

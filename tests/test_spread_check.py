@@ -1,0 +1,78 @@
+"""A bowl re-placed between rollouts (``DomainSpec.bowl_offset_std_m``) and the oracle spread check."""
+
+import json
+
+import numpy as np
+import pytest
+
+from dcm.data import spread_check
+from dcm.sim import BowlSpec, DemoSpec, Simulator
+from dcm.sim.domain import DomainSpec, DomainSpecError
+
+FLAT = BowlSpec(shape="flat", rim_radius_m=0.15, depth_m=0.0, friction=0.3)
+PRESS = DemoSpec(family="line", press_m=0.01, duration_s=3.0, approach_s=1.0, bowl=FLAT,
+                 params={"start_xy_m": [-0.02, 0.0], "end_xy_m": [0.02, 0.0]})
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return Simulator("tool", FLAT).record_demo(PRESS)
+
+
+def _normal_force_shift(demo, seed: int, stiffness_Npm: float) -> tuple[float, float]:
+    sim = Simulator("tool", FLAT, DomainSpec(bowl_offset_std_m=0.003), seed=seed)
+    trial = sim.rollout(demo, sim.constant_stiffness(demo, stiffness_Npm))
+    steady = slice(demo.horizon // 2, None)
+    return trial.bowl_offset_m, float(np.mean(trial.force_obs[steady, 2] - demo.force_demo[steady, 2]))
+
+
+def test_a_raised_bowl_pushes_back_by_stiffness_times_offset(demo) -> None:
+    """The controller does not know the offset, so its spring pushes ``K * offset`` more (or less) into the
+    plate: the spread of the force grows with stiffness, the trade-off a distribution model can see."""
+    for seed in (0, 1, 2):
+        for k in (300.0, 1000.0):
+            offset, shift = _normal_force_shift(demo, seed, k)
+            assert offset != 0.0
+            if offset > -0.008:  # a plate that drops further than the press loses contact
+                assert shift == pytest.approx(k * offset, rel=0.15, abs=0.05)
+
+
+def test_the_offset_is_seeded_and_off_by_default(demo) -> None:
+    assert _normal_force_shift(demo, 4, 500.0) == _normal_force_shift(demo, 4, 500.0)
+    assert _normal_force_shift(demo, 4, 500.0)[0] != _normal_force_shift(demo, 5, 500.0)[0]
+    plain = Simulator("tool", FLAT)
+    assert plain.rollout(demo, plain.constant_stiffness(demo, 500.0)).bowl_offset_m == 0.0
+    # Off, the field is left out of the domain's dict, so older datasets and tuning logs keep their fingerprints.
+    assert "bowl_offset_std_m" not in DomainSpec().to_dict()
+    assert DomainSpec(bowl_offset_std_m=0.002).to_dict()["bowl_offset_std_m"] == 0.002
+    with pytest.raises(DomainSpecError, match="bowl_offset_std_m"):
+        DomainSpec(bowl_offset_std_m=0.5)
+
+
+def test_oracle_losses_and_within_skill_r_on_known_cases() -> None:
+    force_demo = np.zeros((4, 6))
+    # Label 0 N, two samples at +-2 N: each sample's L_task is 2 N, their mean force is 0 N.
+    forces = np.zeros((5, 4, 6))
+    forces[1, :, 0], forces[2, :, 0], forces[3, :, 0], forces[4, :, 0] = 2.0, -2.0, 2.0, -2.0
+    losses = spread_check.oracle_losses(forces, force_demo, k=2)
+    scale = np.sqrt(1 / 3)  # RMSE over the three force axes, one of which is off by 2 N
+    assert losses == pytest.approx({"label": 0.0, "distribution_1": 2 * scale, "distribution_k": 2 * scale,
+                                    "mean_force": 0.0})
+    with pytest.raises(ValueError, match="1 \\+ 2k = 5"):
+        spread_check.oracle_losses(forces[:3], force_demo, k=2)
+    skills = {"a": [{"label": 1.0, "p": 1.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 3.5}],
+              "b": [{"label": 1.0, "p": 3.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 1.0}]}
+    assert spread_check.within_skill_r(skills, "p") == pytest.approx((0.9933992677987828 - 1.0) / 2)
+
+
+def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
+    """The known answer: with no per-rollout perturbation every rollout repeats the label, so every oracle
+    has R = 1; with one, the rollouts differ and the oracles fall below 1."""
+    result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "4", "--k", "1",
+                                "--bowl-offset-mm", "0", "3", "--out", str(tmp_path)])
+    exact, offset = result["by_offset_mm"]["0"], result["by_offset_mm"]["3"]
+    assert exact["R_within"] == {p: pytest.approx(1.0) for p in spread_check.PREDICTORS}
+    rows = next(iter(offset["skills"].values()))
+    assert len(rows) == 4 and all(r["offset_std_mm"] > 0 for r in rows)
+    assert any(r["label"] != r["distribution_1"] for r in rows)
+    assert json.loads((tmp_path / "spread_check.json").read_text())["k"] == 1
