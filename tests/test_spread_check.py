@@ -51,18 +51,20 @@ def test_the_offset_is_seeded_and_off_by_default(demo) -> None:
 
 def test_oracle_losses_and_within_skill_r_on_known_cases() -> None:
     force_demo = np.zeros((4, 6))
-    # Label 0 N, two samples at +-2 N: each sample's L_task is 2 N, their mean force is 0 N.
-    forces = np.zeros((5, 4, 6))
-    forces[1, :, 0], forces[2, :, 0], forces[3, :, 0], forces[4, :, 0] = 2.0, -2.0, 2.0, -2.0
+    # Samples at +-2 N: each sample's L_task is 2/sqrt(3) N (RMSE over three axes), their mean force is exact.
+    forces = np.zeros((6, 4, 6))
+    forces[[0, 2], :, 0], forces[[1, 3], :, 0] = 2.0, -2.0
+    forces[5, :, 0] = 4.0  # the second truth rollout
     losses = spread_check.oracle_losses(forces, force_demo, k=2)
-    scale = np.sqrt(1 / 3)  # RMSE over the three force axes, one of which is off by 2 N
-    assert losses == pytest.approx({"label": 0.0, "distribution_1": 2 * scale, "distribution_k": 2 * scale,
-                                    "mean_force": 0.0})
-    with pytest.raises(ValueError, match="1 \\+ 2k = 5"):
-        spread_check.oracle_losses(forces[:3], force_demo, k=2)
+    scale = np.sqrt(1 / 3)
+    assert losses == pytest.approx({"distribution_1": 2 * scale, "distribution_k": 2 * scale, "mean_force": 0.0,
+                                    "label": 0.0, "expected": 2 * scale})
+    with pytest.raises(ValueError, match="3k = 6"):
+        spread_check.oracle_losses(forces[:5], force_demo, k=2)
     skills = {"a": [{"label": 1.0, "p": 1.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 3.5}],
               "b": [{"label": 1.0, "p": 3.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 1.0}]}
     assert spread_check.within_skill_r(skills, "p") == pytest.approx((0.9933992677987828 - 1.0) / 2)
+    assert spread_check.within_skill_r(skills, "p", truth="p") == pytest.approx(1.0)
 
 
 def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
@@ -71,7 +73,8 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "4", "--k", "1",
                                 "--bowl-offset-mm", "0", "3", "--out", str(tmp_path)])
     exact, offset = result["by_offset_mm"]["0"], result["by_offset_mm"]["3"]
-    assert exact["R_within"] == {p: pytest.approx(1.0) for p in spread_check.PREDICTORS}
+    for truth in spread_check.TRUTHS:
+        assert exact["R_within"][truth] == {p: pytest.approx(1.0) for p in spread_check.PREDICTORS}
     rows = next(iter(offset["skills"].values()))
     assert len(rows) == 4 and all(r["offset_std_mm"] > 0 for r in rows)
     assert any(r["label"] != r["distribution_1"] for r in rows)

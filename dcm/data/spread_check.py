@@ -5,19 +5,20 @@
 The paper's case for a diffusion model is that contact is uncertain: the same inputs give different forces.
 This check asks, with the simulator as an oracle, how much that can be worth on the tuner's question. For
 every skill of the chosen splits it records the demo once and draws random per-phase schedules (the search
-space of ``conf/stiffness/default.yaml``). Each schedule is rolled out ``1 + 2k`` times with different
-simulator seeds, i.e. different draws of the domain's per-rollout perturbation (``bowl_offset_std_m``):
+space of ``conf/stiffness/default.yaml``). Each schedule is rolled out ``3k`` times with different simulator
+seeds, i.e. different draws of the domain's per-rollout perturbation (``bowl_offset_std_m``):
 
-* rollout 0 is the **label**, one realisation as a dataset holds it;
 * rollouts ``1..k`` stand in for a perfect **diffusion model** drawing k samples: ``L_task`` averaged over
   them (``distribution_k``), or of the first one alone (``distribution_1``);
 * the mean force over rollouts ``k+1..2k`` stands in for a perfect **single-pass model**, which learns the
-  conditional mean of the force: ``L_task`` of that mean (``mean_force``).
+  conditional mean of the force: ``L_task`` of that mean (``mean_force``);
+* rollouts ``2k+1..3k`` are the truth: the first one is the **label** a dataset holds (one realisation),
+  their mean ``L_task`` the **expected** loss a tuner wants to minimise.
 
-Each is correlated with the label within each skill (Pearson, averaged over skills, as ``R_within``). With
-no per-rollout perturbation every rollout is the same, so all three rank perfectly (R = 1): the known
-answer. The gap between ``distribution_k`` and ``mean_force`` is the most a distribution model can gain
-over a mean model in ranking, before either has to learn anything.
+Each predictor is correlated with both truths within each skill (Pearson, averaged over skills, as
+``R_within``). With no per-rollout perturbation every rollout is the same, so all three rank perfectly
+(R = 1): the known answer. The gap between ``distribution_k`` and ``mean_force`` is the most a distribution
+model can gain over a mean model in ranking, before either has to learn anything.
 """
 
 from __future__ import annotations
@@ -34,38 +35,41 @@ from dcm.control import equal_time_phases, schedule_from_phases, task_loss
 from dcm.data.task_check import CONF_DIR, preset_skills
 
 PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
+TRUTHS = ("label", "expected")
 
 
 def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int) -> dict[str, float]:
-    """The label and each oracle predictor's L_task from ``forces`` (1 + 2k, H, 6): rollout 0 is the label,
-    rollouts ``1..k`` the distribution model's samples, ``k+1..2k`` what the mean model averages."""
-    if forces.shape[0] != 1 + 2 * k:
-        raise ValueError(f"need 1 + 2k = {1 + 2 * k} rollouts, got {forces.shape[0]}")
+    """Each oracle predictor's and truth's L_task from ``forces`` (3k, H, 6) of one schedule: rollouts
+    ``0..k-1`` are the distribution model's samples, ``k..2k-1`` what the mean model averages, ``2k..3k-1``
+    the truth (the first the label, all of them the expected loss)."""
+    if forces.shape[0] != 3 * k:
+        raise ValueError(f"need 3k = {3 * k} rollouts, got {forces.shape[0]}")
     per_rollout = task_loss(forces, force_demo[None])
     return {
-        "label": float(per_rollout[0]),
-        "distribution_1": float(per_rollout[1]),
-        "distribution_k": float(per_rollout[1:k + 1].mean()),
-        "mean_force": float(task_loss(forces[k + 1:].mean(0), force_demo)),
+        "distribution_1": float(per_rollout[0]),
+        "distribution_k": float(per_rollout[:k].mean()),
+        "mean_force": float(task_loss(forces[k:2 * k].mean(0), force_demo)),
+        "label": float(per_rollout[2 * k]),
+        "expected": float(per_rollout[2 * k:].mean()),
     }
 
 
-def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str) -> float:
-    """Pearson R between a predictor's and the label's L_task over each skill's schedules, averaged."""
+def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, truth: str = "label") -> float:
+    """Pearson R between a predictor's and the truth's L_task over each skill's schedules, averaged."""
     rs = []
     for rows in skills.values():
         pred = np.array([r[predictor] for r in rows])
-        label = np.array([r["label"] for r in rows])
-        if pred.std() == 0 and label.std() == 0:
+        true = np.array([r[truth] for r in rows])
+        if pred.std() == 0 and true.std() == 0:
             rs.append(1.0)  # a skill whose schedules all tie: nothing to rank, nothing ranked wrong
         else:
-            rs.append(float(np.corrcoef(pred, label)[0, 1]))
+            rs.append(float(np.corrcoef(pred, true)[0, 1]))
     return float(np.mean(rs))
 
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
                 rng: np.random.Generator) -> list[dict[str, float]]:
-    """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 1 + 2k
+    """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 3k
     simulators that differ only in their seed."""
     demo = sims[0].record_demo(spec)
     bounds = equal_time_phases(demo.horizon, 3)
@@ -117,13 +121,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for job in jobs:
             spec = DemoSpec.from_dict(job.spec, where=f"{args.dataset} skill {job.index}")
             sims = [Simulator(preset["embodiment"], spec.bowl, skill_domain, seed=args.seed + i,
-                              damping=space["damping"]) for i in range(1 + 2 * args.k)]
+                              damping=space["damping"]) for i in range(3 * args.k)]
             skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng)
             bar.update()
         label = np.array([r["label"] for rows in skills.values() for r in rows])
         results[f"{offset_mm:g}"] = {
             "bowl_offset_std_mm": offset_mm,
-            "R_within": {p: within_skill_r(skills, p) for p in PREDICTORS},
+            "R_within": {truth: {p: within_skill_r(skills, p, truth) for p in PREDICTORS} for truth in TRUTHS},
             "L_task_label_median": float(np.median(label)),
             "skills": skills,
         }
@@ -134,11 +138,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "spread_check.json").write_text(json.dumps(out, indent=1))
-    print(f"R_within against one labelled rollout ({len(jobs)} skills, {args.n_schedules} schedules each, k = {args.k})")
+    print(f"R_within ({len(jobs)} skills, {args.n_schedules} schedules each, k = {args.k}), against one labelled "
+          "rollout / against the expected L_task")
     print("bowl offset std [mm] | " + " | ".join(PREDICTORS) + " | median label L_task [N]")
     for row in results.values():
         r = row["R_within"]
-        print(f"{row['bowl_offset_std_mm']:g} | " + " | ".join(f"{r[p]:.3f}" for p in PREDICTORS)
+        print(f"{row['bowl_offset_std_mm']:g} | "
+              + " | ".join(f"{r['label'][p]:.3f} / {r['expected'][p]:.3f}" for p in PREDICTORS)
               + f" | {row['L_task_label_median']:.2f}")
     print(f"wrote {path / 'spread_check.json'} in {out['seconds']:.0f} s")
     return out
