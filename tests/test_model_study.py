@@ -46,6 +46,11 @@ def test_report_aggregates_seeds_beside_references_with_tests(study: tuple[Path,
     md = paths["md"].read_text()
     assert "| model.diffusion_steps=1 | 2 |" in md and "| copy-F_demo |" in md and "+experiment=diffusion_steps" in md
     assert "Evaluations ran on:" in md and paths["png"].stat().st_size > 10_000
+    # each setting names the command that trains it, from its runs' own overrides, not the sweep's last launch
+    commands = {c["label"]: c["command"] for c in result["cells"]}
+    assert "model.diffusion_steps=1 " in commands["model.diffusion_steps=1"]
+    assert all("seed=0,1" in c and f"hydra.sweep.dir={root / 'sweep'}" in c for c in commands.values())
+    assert all(f"`{c}`" in md for c in commands.values())
     assert list((root / "sweep").glob("*/eval_tiny_valid.json")), "evaluations are cached next to the runs"
 
 
@@ -111,7 +116,7 @@ def test_usage_rate_study_fits_the_ridge_on_each_runs_own_training_subset(tiny_d
          cwd=tmp_path)
     result = json.loads(study_main([str(tmp_path / "sweep"), "--out", str(tmp_path / "report")])["json"].read_text())
     ridges = {c["values"]["usage_rate"]: c for c in result["cells"] if c["values"]["model"] == "stiffness_ridge"}
-    assert set(ridges) == {0.5, 1.0} and all(c["n_seeds"] == 1 for c in ridges.values())
+    assert set(ridges) == {0.5, 1.0} and all(c["n_seeds"] == 1 and c["command"] == "" for c in ridges.values())
     fitted = json.loads((tmp_path / "sweep" / "ridge" / "usage_rate-0.5__seed-3" / "stiffness_ridge.json").read_text())
     dm = DCMDataModule(tiny_dataset_path, usage_rate=0.5, seed=3)
     dm.setup("fit")  # the subset the baseline trained on, and the one the ridge was fitted on

@@ -24,6 +24,7 @@ from dcm.model_study.runs import (Run, StudyError, StudySpec, find_runs, init_ru
                                   study_spec)
 from dcm.model_study.stats import describe, welch_test
 from dcm.model_table import COLUMNS, cached_eval
+from dcm.models.references import STIFFNESS_RIDGE
 
 log = logging.getLogger("dcm.model_study")
 
@@ -127,14 +128,30 @@ def compare(cells: list[Cell], spec: StudySpec, splits: list[str], keys: list[st
     return tests
 
 
-def sweep_command(sweep_dir: Path) -> str:
-    """The ``train.py -m`` command line of the sweep's last launch, from Hydra's multirun.yaml."""
+def _multirun_overrides(sweep_dir: Path) -> tuple[list[str], list[str]]:
+    """The task and Hydra overrides of the sweep's last launch, from Hydra's multirun.yaml."""
     path = sweep_dir / "multirun.yaml"
-    if not path.is_file():
-        return "(unknown: no multirun.yaml in the sweep directory)"
-    overrides = (yaml.safe_load(path.read_text()) or {}).get("hydra", {}).get("overrides", {})
-    args = [o for o in overrides.get("task", [])] + [o for o in overrides.get("hydra", []) if o != "hydra.mode=MULTIRUN"]
-    return "python train.py -m " + " ".join(shlex.quote(str(a)) for a in args)
+    overrides = ((yaml.safe_load(path.read_text()) or {}).get("hydra", {}).get("overrides", {})
+                 if path.is_file() else {})
+    return ([str(o) for o in overrides.get("task", [])],
+            [str(o) for o in overrides.get("hydra", []) if o != "hydra.mode=MULTIRUN"])
+
+
+def cell_command(cell: "Cell", sweep_dir: Path) -> str:
+    """The ``train.py -m`` command that trains a cell's runs: the first run's own overrides
+    (``.hydra/overrides.yaml``) with the cell's seeds, and the Hydra overrides of the sweep's launch. A study
+    filled by several launches thus names each setting's command, not only the last launch's. Empty for the
+    ridge the report fits itself."""
+    if cell.values.get("model") == STIFFNESS_RIDGE:
+        return ""  # fitted by the report itself
+    own = cell.runs[0].path / ".hydra" / "overrides.yaml"
+    if not own.is_file():  # an init_from checkpoint scored as it is: the sweep's launch names it
+        task, hydra = _multirun_overrides(sweep_dir)
+        return "python train.py -m " + " ".join(shlex.quote(a) for a in task + hydra)
+    task = [str(o) for o in yaml.safe_load(own.read_text()) or [] if not str(o).startswith("seed=")]
+    seeds = ",".join(str(s) for s in sorted({r.seed for r in cell.runs}))
+    args = task + [f"seed={seeds}"] + _multirun_overrides(sweep_dir)[1]
+    return "python train.py -m " + " ".join(shlex.quote(a) for a in args)
 
 
 def machine() -> str:
@@ -194,9 +211,9 @@ def collect(sweep_dir: Path, splits: tuple[str, ...] = SPLITS) -> dict[str, Any]
     keys_out = metric_keys(spec)
     return {
         "study": asdict(spec), "sweep_dir": str(sweep_dir), "dataset": str(dataset), "splits": split_info,
-        "setting_keys": keys, "command": sweep_command(sweep_dir), "machine": machine(),
+        "setting_keys": keys, "machine": machine(),
         "unfinished": unfinished, "common_config": common_config(finished),
-        "cells": [{"label": c.label, "values": c.values, "n_seeds": len(c.runs),
+        "cells": [{"label": c.label, "values": c.values, "n_seeds": len(c.runs), "command": cell_command(c, sweep_dir),
                    "runs": [{"path": str(r.path), "seed": r.seed, "scores": {s: c.scores[s][i] for s in use_splits}}
                             for i, r in enumerate(c.runs)],
                    "summary": {s: {m: describe([x.get(m) for x in c.scores[s]]) for m in keys_out} for s in use_splits}}

@@ -47,8 +47,9 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
     lines = [f"# {spec['title'] or spec['name']}", "",
              f"Sweep `{study['sweep_dir']}`: {sum(c['n_seeds'] for c in study['cells'])} scored runs in "
              f"{len(study['cells'])} settings, on `{study['dataset']}`.", "",
-             f"- Runs: `{study['command']}` (config: `conf/experiment/{spec['name']}.yaml`; every run's resolved "
-             "config is its `config.yaml`).",
+             f"- Runs (config: `conf/experiment/{spec['name']}.yaml`; every run's resolved config is its "
+             "`config.yaml`), one command per setting:",
+             *[f"  - {c['label'] or 'default'}: `{c['command']}`" for c in study["cells"] if c.get("command")],
              f"- Report: `{report_command}`.",
              f"- Evaluations ran on: {study['machine']}.",
              "- Cells: mean ± std [min–max] over the n seeds of each setting; each run scored with its checkpoint "
