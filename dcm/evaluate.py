@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from dcm.control.objectives import task_loss
+from dcm.control.objectives import TASK_LOSSES, task_loss
 from dcm.cli import resolve_device
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
@@ -76,10 +76,12 @@ def reference_scores(dataset: str | Path, data: TrajectoryDataset, skills: np.nd
 
 def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_samples: int | None = None,
              n_eval: int | None = None, seed: int = 0, device: str = "auto", reference: str | Path | None = None,
-             sampler: str | None = None, sampling_steps: int | None = None) -> dict[str, Any]:
+             sampler: str | None = None, sampling_steps: int | None = None,
+             task_loss: str | None = None) -> dict[str, Any]:
     """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model.
 
-    ``sampler`` / ``sampling_steps`` override a DCM's sampler (ddpm | ddim and DDIM's steps) for this run."""
+    ``sampler`` / ``sampling_steps`` override a DCM's sampler (ddpm | ddim and DDIM's steps) for this run,
+    ``task_loss`` how its samples give L_task (of_mean | over_samples; the same for the baseline)."""
     predictor = load_model(ckpt, map_location="cpu")
     if isinstance(predictor, ForceModel):
         predictor = predictor.to(resolve_device(device))
@@ -87,6 +89,13 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
         if not isinstance(predictor, DCM):
             raise ModelInputError(f"sampler / sampling_steps apply to a DCM checkpoint, not to {ckpt}")
         predictor.set_sampler(sampler, sampling_steps)
+    if task_loss is not None:
+        if not isinstance(predictor, ForceModel):
+            raise ModelInputError(f"task_loss applies to a DCM or baseline checkpoint, not to {ckpt}")
+        if task_loss not in TASK_LOSSES:
+            raise ModelInputError(f"task_loss must be one of {TASK_LOSSES}, got {task_loss!r}")
+        if isinstance(predictor, DCM):  # the baseline's spread is 0: both give the same L_task
+            predictor.set_task_loss(task_loss)
     loaded = load_dataset(dataset, split=None if split == "all" else split)
     cond_channels, target_channels = dataset_channels(loaded)
     check_dataset(predictor, cond_channels, target_channels, loaded.control_hz, source=f"dataset {dataset}")
@@ -141,7 +150,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     try:
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
                           seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference,
-                          sampler=cfg.sampler, sampling_steps=cfg.sampling_steps)
+                          sampler=cfg.sampler, sampling_steps=cfg.sampling_steps, task_loss=cfg.task_loss)
     except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
         raise SystemExit(f"error: {err}") from None
     out = Path(str(cfg.out))

@@ -134,6 +134,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--sampler", default=None, help="DCM sampler override (ddpm | ddim)")
     parser.add_argument("--sampling-steps", type=int, default=None)
     parser.add_argument("--n-samples", type=int, default=None)
+    parser.add_argument("--task-loss", default=None, choices=["of_mean", "over_samples"],
+                        help="DCM: how k samples give L_task (default: the checkpoint's own)")
     parser.add_argument("--reference", default=None,
                         help="stiffness reference JSON for the ridge row (default: fitted on the dataset's train split)")
     parser.add_argument("--out", type=Path, default=None, help="write the Markdown table here")
@@ -149,7 +151,7 @@ def main(argv: list[str] | None = None) -> str:
             parser.error(f"--runs {spec!r}: no run directory matches {pattern!r}")
         runs[label] = dirs
     overrides = {k: v for k, v in (("sampler", args.sampler), ("sampling_steps", args.sampling_steps),
-                                   ("n_samples", args.n_samples)) if v is not None}
+                                   ("n_samples", args.n_samples), ("task_loss", args.task_loss)) if v is not None}
     tag = "_".join(f"{k}{v}" for k, v in overrides.items())
     if args.reference:
         overrides["reference"] = args.reference

@@ -165,3 +165,42 @@ def test_physical_encoding_option_fits_trains_and_predicts(cls: type) -> None:
         model.predict_forces(*(cond[0, :, i:i + 6].numpy() for i in (0, 6, 12)), no_stiffness)
     with pytest.raises(ModelInputError, match="cond_encoding"):
         cls(net=dict(TINY_NET), cond_encoding="onehot")
+
+
+def test_task_loss_over_samples_is_the_rms_of_the_samples_task_losses() -> None:
+    """From the samples' mean and population std alone it equals the RMS over the samples of their L_task;
+    with no spread it is L_task of the mean."""
+    from dcm.control import task_loss, task_loss_over_samples
+
+    rng = np.random.default_rng(0)
+    samples, demo = rng.normal(size=(5, 3, 12, 6)), rng.normal(size=(3, 12, 6))
+    per_sample = task_loss(samples, demo[None])
+    over = task_loss_over_samples(samples.mean(0), samples.std(0), demo)
+    np.testing.assert_allclose(over, np.sqrt((per_sample ** 2).mean(0)), rtol=1e-12)
+    assert np.all(over > task_loss(samples.mean(0), demo))
+    np.testing.assert_allclose(task_loss_over_samples(samples[0], np.zeros_like(demo), demo), per_sample[0])
+
+
+def test_task_loss_option_counts_the_spread_of_a_dcms_samples() -> None:
+    """``task_loss=over_samples`` ranks by the expected loss: a DCM whose samples spread by +-1 N around F_demo
+    predicts L_task = 1 N instead of the 0 N of their mean; a bad value is named."""
+    gen = torch.Generator().manual_seed(3)
+    cond = _positive_stiffness_cond(gen)
+    model = DCM(net=dict(TINY_NET), ema_decay=0.0, target="residual")
+    model.fit_normalizers(cond, cond[..., 6:12] + torch.randn(6, 12, 6, generator=gen))
+    spread = torch.tensor([1.0, -1.0]).view(2, 1, 1, 1)
+
+    def plus_minus_one(c, k=1, g=None):  # residual samples F_demo +- 1 N, in normalised units
+        return model.target_norm.normalize(spread.expand(2, *c.shape[:2], 6).clone())
+
+    model.sample_normalized = plus_minus_one  # type: ignore[method-assign]
+    inputs = [cond[..., s:s + 6].numpy() for s in (0, 6, 12, 18)]
+    from dcm.models.predict import predict_task_loss
+
+    np.testing.assert_allclose(predict_task_loss(model, *inputs, n_samples=2), 0.0, atol=1e-5)
+    model.set_task_loss("over_samples")
+    np.testing.assert_allclose(predict_task_loss(model, *inputs, n_samples=2), 1.0, atol=1e-4)
+    with pytest.raises(ModelInputError, match="task_loss must be one of"):
+        model.set_task_loss("median")
+    with pytest.raises(ModelInputError, match="task_loss must be one of"):
+        DCM(net=dict(TINY_NET), task_loss="median")

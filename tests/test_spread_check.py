@@ -71,11 +71,13 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     """The known answer: with no per-rollout perturbation every rollout repeats the label, so every oracle
     has R = 1; with one, the rollouts differ and the oracles fall below 1."""
     result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "4", "--k", "1",
-                                "--bowl-offset-mm", "0", "3", "--out", str(tmp_path)])
+                                "--bowl-offset-mm", "0", "3", "--out", str(tmp_path), "--predictor", "copy=copy_demo"])
     exact, offset = result["by_offset_mm"]["0"], result["by_offset_mm"]["3"]
     for truth in spread_check.TRUTHS:
-        assert exact["R_within"][truth] == {p: pytest.approx(1.0) for p in spread_check.PREDICTORS}
+        assert {p: exact["R_within"][truth][p] for p in spread_check.PREDICTORS} == {
+            p: pytest.approx(1.0) for p in spread_check.PREDICTORS}
     rows = next(iter(offset["skills"].values()))
     assert len(rows) == 4 and all(r["offset_std_mm"] > 0 for r in rows)
     assert any(r["label"] != r["distribution_1"] for r in rows)
+    assert all(r["copy"] == 0.0 for r in rows), "copying F_demo predicts no force error at all"
     assert json.loads((tmp_path / "spread_check.json").read_text())["k"] == 1

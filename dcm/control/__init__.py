@@ -25,11 +25,12 @@ from dcm.control.impedance import (
     damping_mass,
     filter_schedule,
 )
-from dcm.control.objectives import compliance_loss, task_loss
+from dcm.control.objectives import TASK_LOSSES, compliance_loss, task_loss, task_loss_over_samples
 from dcm.control.schedule import changepoint_phases, equal_time_phases, phase_boundaries, schedule_from_phases
 
 __all__ = [
     "DAMPING_MODES",
+    "TASK_LOSSES",
     "StiffnessFilter",
     "StiffnessLimits",
     "StiffnessOutOfRange",
@@ -43,4 +44,5 @@ __all__ = [
     "phase_boundaries",
     "schedule_from_phases",
     "task_loss",
+    "task_loss_over_samples",
 ]

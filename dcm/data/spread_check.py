@@ -18,7 +18,9 @@ seeds, i.e. different draws of the domain's per-rollout perturbation (``bowl_off
 Each predictor is correlated with both truths within each skill (Pearson, averaged over skills, as
 ``R_within``). With no per-rollout perturbation every rollout is the same, so all three rank perfectly
 (R = 1): the known answer. The gap between ``distribution_k`` and ``mean_force`` is the most a distribution
-model can gain over a mean model in ranking, before either has to learn anything.
+model can gain over a mean model in ranking, before either has to learn anything. ``--predictor LABEL=PATH`` scores
+trained models (and references) on the same schedules beside the oracles, a DCM both ways: L_task of its k
+samples' mean force, and their RMS L_task (``task_loss=over_samples``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import argparse
 import json
 import time
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -68,9 +71,10 @@ def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, tr
 
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
-                rng: np.random.Generator) -> list[dict[str, float]]:
+                rng: np.random.Generator, predictors: dict[str, Any] | None = None) -> list[dict[str, float]]:
     """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 3k
-    simulators that differ only in their seed."""
+    simulators that differ only in their seed. ``predictors`` (label -> loaded predictor) add each one's
+    L_task for the same schedules, from k samples (``dcm.models.predict.predict_task_loss``)."""
     demo = sims[0].record_demo(spec)
     bounds = equal_time_phases(demo.horizon, 3)
     low, high = float(space["min_Npm"]), float(space["max_Npm"])
@@ -82,8 +86,42 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
             continue
         forces = np.stack([t.force_obs for t in trials])
         rows.append({**oracle_losses(forces, np.asarray(demo.force_demo), k),
-                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials]) * 1000)})
+                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials]) * 1000),
+                     "_inputs": (trials[0].x_attr, schedule)})
+    if rows and predictors:
+        from dcm.models.predict import predict_task_loss
+
+        x_attr, stiffness = (np.stack(a) for a in zip(*(r["_inputs"] for r in rows)))
+        x_demo, force_demo = (np.repeat(np.asarray(a)[None], len(rows), 0) for a in (demo.x_demo, demo.force_demo))
+        for label, model in predictors.items():
+            losses = predict_task_loss(model, x_demo, force_demo, x_attr, stiffness, n_samples=k)
+            for row, loss in zip(rows, losses):
+                row[label] = float(loss)
+    for row in rows:
+        del row["_inputs"]
     return rows
+
+
+def load_predictors(specs: list[str], error: Callable[[str], Any]) -> dict[str, Any]:
+    """``LABEL=PATH`` (a checkpoint, a reference JSON or ``copy_demo``) -> loaded predictors. A DCM is added
+    twice: ``LABEL`` with L_task of its k samples' mean force, ``LABEL, over samples`` with their RMS L_task."""
+    import copy
+
+    from dcm.models.predict import load_model
+
+    out: dict[str, Any] = {}
+    for spec in specs:
+        label, sep, path = spec.partition("=")
+        if not sep or not label or not path:
+            error(f"--predictor {spec!r}: expected LABEL=PATH")
+        model = load_model(path)
+        out[label] = model
+        if hasattr(model, "set_task_loss"):
+            spread = copy.deepcopy(model)
+            spread.set_task_loss("over_samples")
+            model.set_task_loss("of_mean")
+            out[f"{label}, over samples"] = spread
+    return out
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -102,6 +140,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--k", type=int, default=4, help="samples the distribution model draws")
     parser.add_argument("--bowl-offset-mm", type=float, nargs="+", default=[0.0, 2.0, 4.0],
                         help="per-rollout bowl height spread(s) to compare [mm]")
+    parser.add_argument("--predictor", nargs="*", default=[], metavar="LABEL=PATH",
+                        help="also score these predictors (checkpoint, reference JSON, copy_demo) on the schedules")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="reports/spread_check")
     args = parser.parse_args(argv)
@@ -109,6 +149,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         parser.error(f"--k {args.k} must be >= 1 and --n-schedules {args.n_schedules} >= 3")
 
     preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error)
+    predictors = load_predictors(args.predictor, parser.error)
+    columns = (*PREDICTORS, *predictors)
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     domain = DomainSpec.resolve(preset["domain"]).to_dict()
     results: dict[str, Any] = {}
@@ -122,29 +164,31 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             spec = DemoSpec.from_dict(job.spec, where=f"{args.dataset} skill {job.index}")
             sims = [Simulator(preset["embodiment"], spec.bowl, skill_domain, seed=args.seed + i,
                               damping=space["damping"]) for i in range(3 * args.k)]
-            skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng)
+            skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng,
+                                                                 predictors)
             bar.update()
         label = np.array([r["label"] for rows in skills.values() for r in rows])
         results[f"{offset_mm:g}"] = {
             "bowl_offset_std_mm": offset_mm,
-            "R_within": {truth: {p: within_skill_r(skills, p, truth) for p in PREDICTORS} for truth in TRUTHS},
+            "R_within": {truth: {p: within_skill_r(skills, p, truth) for p in columns} for truth in TRUTHS},
             "L_task_label_median": float(np.median(label)),
             "skills": skills,
         }
     bar.close()
     out = {"dataset": args.dataset, "splits": args.splits, "embodiment": preset["embodiment"], "k": args.k,
-           "n_schedules": args.n_schedules, "seed": args.seed, "seconds": time.perf_counter() - start,
+           "n_schedules": args.n_schedules, "seed": args.seed, "predictors": args.predictor,
+           "seconds": time.perf_counter() - start,
            "by_offset_mm": results}
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "spread_check.json").write_text(json.dumps(out, indent=1))
     print(f"R_within ({len(jobs)} skills, {args.n_schedules} schedules each, k = {args.k}), against one labelled "
           "rollout / against the expected L_task")
-    print("bowl offset std [mm] | " + " | ".join(PREDICTORS) + " | median label L_task [N]")
+    print("bowl offset std [mm] | " + " | ".join(columns) + " | median label L_task [N]")
     for row in results.values():
         r = row["R_within"]
         print(f"{row['bowl_offset_std_mm']:g} | "
-              + " | ".join(f"{r['label'][p]:.3f} / {r['expected'][p]:.3f}" for p in PREDICTORS)
+              + " | ".join(f"{r['label'][p]:.3f} / {r['expected'][p]:.3f}" for p in columns)
               + f" | {row['L_task_label_median']:.2f}")
     print(f"wrote {path / 'spread_check.json'} in {out['seconds']:.0f} s")
     return out

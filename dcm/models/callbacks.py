@@ -64,7 +64,10 @@ def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None
     mse.update(model.normalized_target(cond, pred).reshape(-1), model.normalized_target(cond, true).reshape(-1))
     arrays = {"pred_N": pred.cpu().numpy(), "std_N": std.cpu().numpy(), "true_N": true.cpu().numpy(),
               "F_demo_N": cond[..., cond_slice("F_demo")].cpu().numpy()}
-    scores, L_pred, L_true = force_prediction_metrics(arrays["pred_N"], arrays["true_N"], arrays["F_demo_N"], skills)
+    L_pred = np.asarray(model.predicted_task_loss(pred.double(), std.double(), cond[..., cond_slice("F_demo")].double())
+                        .cpu().numpy())
+    scores, L_pred, L_true = force_prediction_metrics(arrays["pred_N"], arrays["true_N"], arrays["F_demo_N"], skills,
+                                                      L_pred=L_pred)
     metrics: dict[str, float] = {"L_MSE": float(mse.compute()), "R": scores["R_pooled"], **scores,
                                  "mean_std_N": float(std[..., :3].mean())}
     arrays.update(L_task_pred=L_pred, L_task_true=L_true)

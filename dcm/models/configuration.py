@@ -18,6 +18,7 @@ from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; 
     target_channel_names,
 )
 from dcm.models.cond_encoding import COND_ENCODINGS
+from dcm.control.objectives import TASK_LOSSES
 from dcm.models.diffusion import INPUT_SCALINGS, PREDICTION_TYPES
 from dcm.models.normalizer import NORMALIZATIONS
 
@@ -142,6 +143,9 @@ class DCMConfig(ForceModelConfig):
     sampler: str = "ddpm"  # ddpm (ancestral, T steps) | ddim (deterministic, sampling_steps)
     sampling_steps: int | None = None  # DDIM only; None = T
     n_samples: int = 1  # k samples averaged per prediction during evaluation
+    # L_task of k samples: of_mean (of their mean force) | over_samples (RMS over the samples' L_task, i.e. the
+    # expected loss, spread included: what a model of the force distribution adds over one of its mean)
+    task_loss: str = "of_mean"
     # how the noisy force enters the net: unit (x_t, the paper's) | signal (x_t * sqrt(alpha_bar_t))
     input_scaling: str = "unit"
 
@@ -161,6 +165,8 @@ class DCMConfig(ForceModelConfig):
             raise ModelInputError(f"prediction_type must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if int(self.n_samples) < 1:
             raise ModelInputError(f"n_samples must be >= 1, got {self.n_samples}")
+        if self.task_loss not in TASK_LOSSES:
+            raise ModelInputError(f"task_loss must be one of {TASK_LOSSES}, got {self.task_loss!r}")
         if self.input_scaling not in INPUT_SCALINGS:
             raise ModelInputError(f"input_scaling must be one of {INPUT_SCALINGS}, got {self.input_scaling!r}")
 

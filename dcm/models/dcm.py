@@ -22,6 +22,7 @@ import torch
 from torch import nn
 
 from dcm import __version__
+from dcm.control.objectives import TASK_LOSSES, task_loss, task_loss_over_samples
 from dcm.models import diffusion
 from dcm.models.configuration import (
     CheckpointIncompatibleError,
@@ -265,6 +266,13 @@ class ForceModel(L.LightningModule):
         mean = self.force_from_target(cond, self.target_norm.unnormalize(mean_n))
         return mean, self.target_norm.unnormalize_std(std_n)
 
+    def predicted_task_loss(self, mean: Any, std: Any, F_demo: Any) -> Any:
+        """L_task (B,) [N] a prediction implies: of the mean force, or with ``task_loss=over_samples`` (a DCM
+        option) the RMS over the samples, whose spread ``std`` then counts (the baseline's is 0)."""
+        if getattr(self.cfg, "task_loss", "of_mean") == "over_samples":
+            return task_loss_over_samples(mean, std, F_demo)
+        return task_loss(mean, F_demo)
+
     @torch.no_grad()
     def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
                        generator: torch.Generator | None = None) -> tuple[Any, Any]:
@@ -331,6 +339,12 @@ class DCM(ForceModel):
     @property
     def default_samples(self) -> int:
         return int(self.cfg.n_samples)
+
+    def set_task_loss(self, task_loss: str) -> None:
+        """Switch how k samples give L_task (``of_mean`` | ``over_samples``) without retraining."""
+        if task_loss not in TASK_LOSSES:
+            raise ModelInputError(f"task_loss must be one of {TASK_LOSSES}, got {task_loss!r}")
+        self.cfg.task_loss = task_loss
 
     def set_sampler(self, sampler: str | None = None, sampling_steps: int | None = None) -> None:
         """Switch how predictions are sampled (ddpm | ddim, and DDIM's step count) without retraining: the

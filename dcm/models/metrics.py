@@ -169,12 +169,15 @@ def force_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray) -> 
 
 
 def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray,
-                             skills: np.ndarray | None) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+                             skills: np.ndarray | None, L_pred: np.ndarray | None = None
+                             ) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
     """:func:`force_metrics` plus :func:`ranking_metrics` of the L_task the forces imply.
 
-    Returns ``(metrics, L_task_pred, L_task_true)``; L_task is :func:`dcm.control.objectives.task_loss`.
+    Returns ``(metrics, L_task_pred, L_task_true)``; L_task is :func:`dcm.control.objectives.task_loss`, of
+    ``F_pred`` unless the model gives its own ``L_pred`` (``ForceModel.predicted_task_loss``).
     """
-    L_pred = np.asarray(task_loss(np.asarray(F_pred, np.float64), np.asarray(F_demo, np.float64)))
+    if L_pred is None:
+        L_pred = np.asarray(task_loss(np.asarray(F_pred, np.float64), np.asarray(F_demo, np.float64)))
     L_true = np.asarray(task_loss(np.asarray(F_obs, np.float64), np.asarray(F_demo, np.float64)))
     return {**force_metrics(F_pred, F_obs, F_demo), **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
 

@@ -111,13 +111,15 @@ def predict_task_loss(predictor: Any, x_demo: Any, F_demo: Any, x_attr: Any, K: 
     """Predicted L_task (B,) [N] of any predictor for (B, H, 6) or (H, 6) raw inputs.
 
     Force predictors: :func:`dcm.control.objectives.task_loss` of the (``n_samples``-averaged) predicted
-    force against F_demo, as the tuner always computed it. Others: their ``predict_task_loss``.
+    force against F_demo, or what a DCM's ``task_loss`` option makes of its samples
+    (``ForceModel.predicted_task_loss``). Others: their ``predict_task_loss``.
     """
     if isinstance(predictor, ForcePredictor):
         kwargs = {"n_samples": n_samples} if generator is None else {"n_samples": n_samples, "generator": generator}
-        mean, _ = predictor.predict_forces(_numpy(x_demo), _numpy(F_demo), _numpy(x_attr), _numpy(K), **kwargs)
-        return np.atleast_1d(np.asarray(task_loss(_numpy(mean).astype(np.float64),
-                                                  _numpy(F_demo).astype(np.float64))))
+        mean, std = predictor.predict_forces(_numpy(x_demo), _numpy(F_demo), _numpy(x_attr), _numpy(K), **kwargs)
+        mean, std, demo = (_numpy(a).astype(np.float64) for a in (mean, std, F_demo))
+        loss = predictor.predicted_task_loss(mean, std, demo) if isinstance(predictor, ForceModel) else task_loss(mean, demo)
+        return np.atleast_1d(np.asarray(loss))
     if isinstance(predictor, TaskLossPredictor):
         return np.atleast_1d(np.asarray(predictor.predict_task_loss(x_demo, F_demo, x_attr, K), dtype=np.float64))
     raise TypeError(f"{type(predictor).__name__} has neither predict_forces nor predict_task_loss")
@@ -135,6 +137,8 @@ def describe(predictor: Any, n_samples: int | None = None) -> dict[str, Any]:
             "sampling_steps": (predictor.cfg.sampling_steps or predictor.cfg.diffusion_steps) if is_dcm else 1,
             "n_samples": k,
             "net": predictor.cfg.net.get("name"),
+            # named only when it is not the default, so that earlier tuning logs keep their fingerprints
+            **({"task_loss": predictor.cfg.task_loss} if is_dcm and predictor.cfg.task_loss != "of_mean" else {}),
         }
     if hasattr(predictor, "describe"):
         return predictor.describe()

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from dcm.cli import check_integer, check_number
-from dcm.control import phase_boundaries
+from dcm.control import TASK_LOSSES, phase_boundaries
 from dcm.search import SearchSpace, check_budget, make_search, space_from_settings
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
@@ -152,6 +152,9 @@ def check_config(cfg: Any) -> CheckedConfig:
         raise TuneConfigError(f"robot_free.sampler = {sampler!r}; expected null (the checkpoint's), ddpm or ddim")
     if free.get("sampling_steps") is not None:
         _integer(free.sampling_steps, "robot_free.sampling_steps", 1, " or null")
+    if free.get("task_loss") not in (None, *TASK_LOSSES):
+        raise TuneConfigError(f"robot_free.task_loss = {free.task_loss!r}; expected null (the checkpoint's), "
+                              + " or ".join(TASK_LOSSES))
     _integer(cfg.seed, "seed", 0)
     _number(cfg.control_hz, "control_hz")
     if not 1.0 <= cfg.control_hz <= 500.0:
@@ -323,6 +326,8 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     if (mismatch := recording_mismatch(cfg.ckpt, spec)) is not None:
         warnings.warn(mismatch, DemoRecordingWarning, stacklevel=2)
     use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
+    if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # the baseline's spread is 0
+        model.set_task_loss(cfg.robot_free.task_loss)
 
     prints = fingerprints(cfg, spec, domain, model, device)
     notes = {"predictor": str(cfg.ckpt), "model": type(model).__name__}
