@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from dcm.control.objectives import TASK_LOSSES, task_loss
+from dcm.control.objectives import task_loss
 from dcm.cli import resolve_device
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
@@ -92,10 +92,7 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
     if task_loss is not None:
         if not isinstance(predictor, ForceModel):
             raise ModelInputError(f"task_loss applies to a DCM or baseline checkpoint, not to {ckpt}")
-        if task_loss not in TASK_LOSSES:
-            raise ModelInputError(f"task_loss must be one of {TASK_LOSSES}, got {task_loss!r}")
-        if isinstance(predictor, DCM):  # the baseline's spread is 0: both give the same L_task
-            predictor.set_task_loss(task_loss)
+        predictor.set_task_loss(task_loss)
     loaded = load_dataset(dataset, split=None if split == "all" else split)
     cond_channels, target_channels = dataset_channels(loaded)
     check_dataset(predictor, cond_channels, target_channels, loaded.control_hz, source=f"dataset {dataset}")

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from dcm.data import spread_check
+from dcm import spread_check
 from dcm.sim import BowlSpec, DemoSpec, Simulator
 from dcm.sim.domain import DomainSpec, DomainSpecError
 

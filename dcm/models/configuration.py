@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping
 
+from dcm.control.objectives import TASK_LOSSES
 from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; re-exported for model users
     COND_FIELDS,
     TARGET_FIELD,
@@ -18,7 +19,6 @@ from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; 
     target_channel_names,
 )
 from dcm.models.cond_encoding import COND_ENCODINGS
-from dcm.control.objectives import TASK_LOSSES
 from dcm.models.diffusion import INPUT_SCALINGS, PREDICTION_TYPES
 from dcm.models.normalizer import NORMALIZATIONS
 

@@ -266,6 +266,14 @@ class ForceModel(L.LightningModule):
         mean = self.force_from_target(cond, self.target_norm.unnormalize(mean_n))
         return mean, self.target_norm.unnormalize_std(std_n)
 
+    def set_task_loss(self, task_loss: str) -> None:
+        """Switch how k samples give L_task (``of_mean`` | ``over_samples``) without retraining. A DCM option:
+        the baseline's spread is 0, so both give the same L_task there."""
+        if task_loss not in TASK_LOSSES:
+            raise ModelInputError(f"task_loss must be one of {TASK_LOSSES}, got {task_loss!r}")
+        if hasattr(self.cfg, "task_loss"):
+            self.cfg.task_loss = task_loss
+
     def predicted_task_loss(self, mean: Any, std: Any, F_demo: Any) -> Any:
         """L_task (B,) [N] a prediction implies: of the mean force, or with ``task_loss=over_samples`` (a DCM
         option) the RMS over the samples, whose spread ``std`` then counts (the baseline's is 0)."""
@@ -339,12 +347,6 @@ class DCM(ForceModel):
     @property
     def default_samples(self) -> int:
         return int(self.cfg.n_samples)
-
-    def set_task_loss(self, task_loss: str) -> None:
-        """Switch how k samples give L_task (``of_mean`` | ``over_samples``) without retraining."""
-        if task_loss not in TASK_LOSSES:
-            raise ModelInputError(f"task_loss must be one of {TASK_LOSSES}, got {task_loss!r}")
-        self.cfg.task_loss = task_loss
 
     def set_sampler(self, sampler: str | None = None, sampling_steps: int | None = None) -> None:
         """Switch how predictions are sampled (ddpm | ddim, and DDIM's step count) without retraining: the

@@ -118,8 +118,9 @@ def predict_task_loss(predictor: Any, x_demo: Any, F_demo: Any, x_attr: Any, K: 
         kwargs = {"n_samples": n_samples} if generator is None else {"n_samples": n_samples, "generator": generator}
         mean, std = predictor.predict_forces(_numpy(x_demo), _numpy(F_demo), _numpy(x_attr), _numpy(K), **kwargs)
         mean, std, demo = (_numpy(a).astype(np.float64) for a in (mean, std, F_demo))
-        loss = predictor.predicted_task_loss(mean, std, demo) if isinstance(predictor, ForceModel) else task_loss(mean, demo)
-        return np.atleast_1d(np.asarray(loss))
+        if isinstance(predictor, ForceModel):
+            return np.atleast_1d(np.asarray(predictor.predicted_task_loss(mean, std, demo)))
+        return np.atleast_1d(np.asarray(task_loss(mean, demo)))
     if isinstance(predictor, TaskLossPredictor):
         return np.atleast_1d(np.asarray(predictor.predict_task_loss(x_demo, F_demo, x_attr, K), dtype=np.float64))
     raise TypeError(f"{type(predictor).__name__} has neither predict_forces nor predict_task_loss")

@@ -326,7 +326,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     if (mismatch := recording_mismatch(cfg.ckpt, spec)) is not None:
         warnings.warn(mismatch, DemoRecordingWarning, stacklevel=2)
     use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
-    if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # the baseline's spread is 0
+    if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
         model.set_task_loss(cfg.robot_free.task_loss)
 
     prints = fingerprints(cfg, spec, domain, model, device)

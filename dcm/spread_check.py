@@ -1,6 +1,6 @@
 """Can a model of the force *distribution* rank a skill's schedules better than a model of its *mean*?
 
-    python -m dcm.data.spread_check --dataset sim_contact --bowl-offset-mm 0 2 4 --out reports/spread_check
+    python -m dcm.spread_check --dataset sim_contact --bowl-offset-mm 0.5 2 5 --out reports/spread_check_sim_contact
 
 The paper's case for a diffusion model is that contact is uncertain: the same inputs give different forces.
 This check asks, with the simulator as an oracle, how much that can be worth on the tuner's question. For
@@ -107,6 +107,7 @@ def load_predictors(specs: list[str], error: Callable[[str], Any]) -> dict[str, 
     twice: ``LABEL`` with L_task of its k samples' mean force, ``LABEL, over samples`` with their RMS L_task."""
     import copy
 
+    from dcm.models.dcm import DCM
     from dcm.models.predict import load_model
 
     out: dict[str, Any] = {}
@@ -116,7 +117,7 @@ def load_predictors(specs: list[str], error: Callable[[str], Any]) -> dict[str, 
             error(f"--predictor {spec!r}: expected LABEL=PATH")
         model = load_model(path)
         out[label] = model
-        if hasattr(model, "set_task_loss"):
+        if isinstance(model, DCM):
             spread = copy.deepcopy(model)
             spread.set_task_loss("over_samples")
             model.set_task_loss("of_mean")
