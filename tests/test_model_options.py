@@ -200,6 +200,14 @@ def test_task_loss_option_counts_the_spread_of_a_dcms_samples() -> None:
     np.testing.assert_allclose(predict_task_loss(model, *inputs, n_samples=2), 0.0, atol=1e-5)
     model.set_task_loss("over_samples")
     np.testing.assert_allclose(predict_task_loss(model, *inputs, n_samples=2), 1.0, atol=1e-4)
+    # the validation metrics (and dcm.evaluate) rank with the same L_task
+    from dcm.data.datamodule import TrajectoryDataset
+    from dcm.models.callbacks import evaluate_model
+
+    data = TrajectoryDataset(cond.numpy(), cond[..., 6:12].numpy(), [f"t{i}" for i in range(6)], np.zeros(6))
+    _, arrays = evaluate_model(model, data, n_samples=2)
+    np.testing.assert_allclose(arrays["L_task_pred"], 1.0, atol=1e-4)
+    Baseline(net=dict(TINY_NET)).set_task_loss("over_samples")  # accepted: with no spread both are the same
     with pytest.raises(ModelInputError, match="task_loss must be one of"):
         model.set_task_loss("median")
     with pytest.raises(ModelInputError, match="task_loss must be one of"):
