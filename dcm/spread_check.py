@@ -5,14 +5,16 @@
 The paper's case for a diffusion model is that contact is uncertain: the same inputs give different forces.
 This check asks, with the simulator as an oracle, how much that can be worth on the tuner's question. For
 every skill of the chosen splits it records the demo once and draws random per-phase schedules (the search
-space of ``conf/stiffness/default.yaml``). Each schedule is rolled out ``3k`` times with different simulator
-seeds, i.e. different draws of the domain's per-rollout perturbation (``bowl_offset_std_m``):
+space of ``conf/stiffness/default.yaml``). Each schedule is rolled out ``2k + 1`` times: ``2k`` times with
+different simulator seeds, i.e. different draws of the domain's per-rollout perturbation
+(``bowl_offset_std_m``), and once without it:
 
 * rollouts ``1..k`` stand in for a perfect **diffusion model** drawing k samples: ``L_task`` averaged over
   them (``distribution_k``), or of the first one alone (``distribution_1``);
-* the mean force over rollouts ``k+1..2k`` stands in for a perfect **single-pass model**, which learns the
-  conditional mean of the force: ``L_task`` of that mean (``mean_force``);
-* rollouts ``2k+1..3k`` are the truth: the first one is the **label** a dataset holds (one realisation),
+* the unperturbed rollout stands in for a perfect **single-pass model**, which learns the conditional mean
+  of the force: the force responds about linearly to a small bowl offset (K times it, while in contact), so
+  its mean is the force with the bowl where the demo had it; ``L_task`` of that force (``mean_force``);
+* rollouts ``k+1..2k`` are the truth: the first one is the **label** a dataset holds (one realisation),
   their mean ``L_task`` the **expected** loss a tuner wants to minimise.
 
 Each predictor is correlated with both truths within each skill (Pearson, averaged over skills, as
@@ -42,18 +44,18 @@ TRUTHS = ("label", "expected")
 
 
 def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int) -> dict[str, float]:
-    """Each oracle predictor's and truth's L_task from ``forces`` (3k, H, 6) of one schedule: rollouts
-    ``0..k-1`` are the distribution model's samples, ``k..2k-1`` what the mean model averages, ``2k..3k-1``
-    the truth (the first the label, all of them the expected loss)."""
-    if forces.shape[0] != 3 * k:
-        raise ValueError(f"need 3k = {3 * k} rollouts, got {forces.shape[0]}")
+    """Each oracle predictor's and truth's L_task from ``forces`` (2k + 1, H, 6) of one schedule: rollouts
+    ``0..k-1`` are the distribution model's samples, ``k..2k-1`` the truth (the first the label, all of them
+    the expected loss), the last one the unperturbed force the mean model predicts."""
+    if forces.shape[0] != 2 * k + 1:
+        raise ValueError(f"need 2k + 1 = {2 * k + 1} rollouts, got {forces.shape[0]}")
     per_rollout = task_loss(forces, force_demo[None])
     return {
         "distribution_1": float(per_rollout[0]),
         "distribution_k": float(per_rollout[:k].mean()),
-        "mean_force": float(task_loss(forces[k:2 * k].mean(0), force_demo)),
-        "label": float(per_rollout[2 * k]),
-        "expected": float(per_rollout[2 * k:].mean()),
+        "mean_force": float(per_rollout[2 * k]),
+        "label": float(per_rollout[k]),
+        "expected": float(per_rollout[k:2 * k].mean()),
     }
 
 
@@ -72,8 +74,8 @@ def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, tr
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
                 rng: np.random.Generator, predictors: dict[str, Any] | None = None) -> list[dict[str, float]]:
-    """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 3k
-    simulators that differ only in their seed. ``predictors`` (label -> loaded predictor) add each one's
+    """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 2k simulators
+    that differ only in their seed, then one without the per-rollout perturbation. ``predictors`` (label -> loaded predictor) add each one's
     L_task for the same schedules, from k samples (``dcm.models.predict.predict_task_loss``)."""
     demo = sims[0].record_demo(spec)
     bounds = equal_time_phases(demo.horizon, 3)
@@ -86,7 +88,7 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
             continue
         forces = np.stack([t.force_obs for t in trials])
         rows.append({**oracle_losses(forces, np.asarray(demo.force_demo), k),
-                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials]) * 1000),
+                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials[:-1]]) * 1000),
                      "_inputs": (trials[0].x_attr, schedule)})
     if rows and predictors:
         from dcm.models.predict import predict_task_loss
@@ -159,12 +161,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     bar = tqdm(total=len(args.bowl_offset_mm) * len(jobs), desc="spread check", unit="skill")
     for offset_mm in args.bowl_offset_mm:
         skill_domain = DomainSpec.from_dict({**domain, "bowl_offset_std_m": offset_mm / 1000.0})
+        nominal = DomainSpec.from_dict({**domain, "bowl_offset_std_m": 0.0})
         rng = np.random.default_rng(args.seed)  # the same schedules at every spread
         skills: dict[str, list[dict[str, float]]] = {}
         for job in jobs:
             spec = DemoSpec.from_dict(job.spec, where=f"{args.dataset} skill {job.index}")
-            sims = [Simulator(preset["embodiment"], spec.bowl, skill_domain, seed=args.seed + i,
-                              damping=space["damping"]) for i in range(3 * args.k)]
+            sims = [Simulator(preset["embodiment"], spec.bowl, d, seed=args.seed + i, damping=space["damping"])
+                    for i, d in enumerate([skill_domain] * (2 * args.k) + [nominal])]
             skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng,
                                                                  predictors)
             bar.update()

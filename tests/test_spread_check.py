@@ -51,16 +51,16 @@ def test_the_offset_is_seeded_and_off_by_default(demo) -> None:
 
 def test_oracle_losses_and_within_skill_r_on_known_cases() -> None:
     force_demo = np.zeros((4, 6))
-    # Samples at +-2 N: each sample's L_task is 2/sqrt(3) N (RMSE over three axes), their mean force is exact.
-    forces = np.zeros((6, 4, 6))
-    forces[[0, 2], :, 0], forces[[1, 3], :, 0] = 2.0, -2.0
-    forces[5, :, 0] = 4.0  # the second truth rollout
+    # Samples at +-2 N around the demo: each one's L_task is 2/sqrt(3) N (RMSE over three axes); the truth
+    # rollouts are exact and 4 N off; the unperturbed rollout (the mean model's) is exact.
+    forces = np.zeros((5, 4, 6))
+    forces[0, :, 0], forces[1, :, 0], forces[3, :, 0] = 2.0, -2.0, 4.0
     losses = spread_check.oracle_losses(forces, force_demo, k=2)
     scale = np.sqrt(1 / 3)
     assert losses == pytest.approx({"distribution_1": 2 * scale, "distribution_k": 2 * scale, "mean_force": 0.0,
                                     "label": 0.0, "expected": 2 * scale})
-    with pytest.raises(ValueError, match="3k = 6"):
-        spread_check.oracle_losses(forces[:5], force_demo, k=2)
+    with pytest.raises(ValueError, match="2k \\+ 1 = 5"):
+        spread_check.oracle_losses(forces[:4], force_demo, k=2)
     skills = {"a": [{"label": 1.0, "p": 1.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 3.5}],
               "b": [{"label": 1.0, "p": 3.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 1.0}]}
     assert spread_check.within_skill_r(skills, "p") == pytest.approx((0.9933992677987828 - 1.0) / 2)
