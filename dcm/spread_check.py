@@ -20,9 +20,9 @@ different simulator seeds, i.e. different draws of the domain's per-rollout pert
 Each predictor is correlated with both truths within each skill (Pearson, averaged over skills, as
 ``R_within``). With no per-rollout perturbation every rollout is the same, so all three rank perfectly
 (R = 1): the known answer. The gap between ``distribution_k`` and ``mean_force`` is the most a distribution
-model can gain over a mean model in ranking, before either has to learn anything. ``--predictor LABEL=PATH`` scores
-trained models (and references) on the same schedules beside the oracles, a DCM both ways: L_task of its k
-samples' mean force, and their RMS L_task (``task_loss=over_samples``).
+model can gain over a mean model in ranking, before either has to learn anything. ``--predictor
+LABEL=PATH`` scores trained models (and references) on the same schedules beside the oracles, a DCM both
+ways: L_task of its k samples' mean force, and their RMS L_task (``task_loss=over_samples``).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -75,12 +75,13 @@ def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, tr
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
                 rng: np.random.Generator, predictors: dict[str, Any] | None = None) -> list[dict[str, float]]:
     """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 2k simulators
-    that differ only in their seed, then one without the per-rollout perturbation. ``predictors`` (label -> loaded predictor) add each one's
-    L_task for the same schedules, from k samples (``dcm.models.predict.predict_task_loss``)."""
+    that differ only in their seed, then one without the per-rollout perturbation. ``predictors`` (label ->
+    loaded predictor) add each one's L_task for the same schedules, from k samples
+    (``dcm.models.predict.predict_task_loss``)."""
     demo = sims[0].record_demo(spec)
     bounds = equal_time_phases(demo.horizon, 3)
     low, high = float(space["min_Npm"]), float(space["max_Npm"])
-    rows = []
+    rows, inputs = [], []
     for _ in range(n_schedules):
         schedule = schedule_from_phases(rng.uniform(low, high, size=(3, 3)), bounds, float(space["rot_Nmprad"]))
         trials = [sim.rollout(demo, schedule) for sim in sims]
@@ -88,19 +89,17 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
             continue
         forces = np.stack([t.force_obs for t in trials])
         rows.append({**oracle_losses(forces, np.asarray(demo.force_demo), k),
-                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials[:-1]]) * 1000),
-                     "_inputs": (trials[0].x_attr, schedule)})
+                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials[:-1]]) * 1000)})
+        inputs.append((trials[0].x_attr, schedule))
     if rows and predictors:
         from dcm.models.predict import predict_task_loss
 
-        x_attr, stiffness = (np.stack(a) for a in zip(*(r["_inputs"] for r in rows)))
+        x_attr, stiffness = (np.stack(a) for a in zip(*inputs))
         x_demo, force_demo = (np.repeat(np.asarray(a)[None], len(rows), 0) for a in (demo.x_demo, demo.force_demo))
         for label, model in predictors.items():
             losses = predict_task_loss(model, x_demo, force_demo, x_attr, stiffness, n_samples=k)
             for row, loss in zip(rows, losses):
                 row[label] = float(loss)
-    for row in rows:
-        del row["_inputs"]
     return rows
 
 
