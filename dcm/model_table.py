@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from dcm.control.objectives import TASK_LOSSES
 from dcm.model_study.stats import ALPHA, p_text, welch_test
 from dcm.models.export import run_checkpoint
 
@@ -134,7 +135,7 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--sampler", default=None, help="DCM sampler override (ddpm | ddim)")
     parser.add_argument("--sampling-steps", type=int, default=None)
     parser.add_argument("--n-samples", type=int, default=None)
-    parser.add_argument("--task-loss", default=None, choices=["of_mean", "over_samples"],
+    parser.add_argument("--task-loss", default=None, choices=TASK_LOSSES,
                         help="DCM: how k samples give L_task (default: the checkpoint's own)")
     parser.add_argument("--reference", default=None,
                         help="stiffness reference JSON for the ridge row (default: fitted on the dataset's train split)")

@@ -60,16 +60,13 @@ def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int) -> dict[st
 
 
 def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, truth: str = "label") -> float:
-    """Pearson R between a predictor's and the truth's L_task over each skill's schedules, averaged."""
-    rs = []
-    for rows in skills.values():
-        pred = np.array([r[predictor] for r in rows])
-        true = np.array([r[truth] for r in rows])
-        if pred.std() == 0 and true.std() == 0:
-            rs.append(1.0)  # a skill whose schedules all tie: nothing to rank, nothing ranked wrong
-        else:
-            rs.append(float(np.corrcoef(pred, true)[0, 1]))
-    return float(np.mean(rs))
+    """The project's R_within (``dcm.models.metrics.within_skill_correlation``) of a predictor against the
+    truth over each skill's schedules: NaN for a predictor that ranks nothing (copy-F_demo)."""
+    from dcm.models.metrics import within_skill_correlation
+
+    rows = [(r[predictor], r[truth], i) for i, skill in enumerate(skills.values()) for r in skill]
+    pred, true, ids = (np.array(a) for a in zip(*rows))
+    return within_skill_correlation(pred, true, ids)[0]
 
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],

@@ -62,10 +62,10 @@ def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None
     # L_MSE compares what the net learns (F_obs, or its residual from F_demo) in normalised units
     mse = torchmetrics.MeanSquaredError().to(device)
     mse.update(model.normalized_target(cond, pred).reshape(-1), model.normalized_target(cond, true).reshape(-1))
+    F_demo = cond[..., cond_slice("F_demo")]
     arrays = {"pred_N": pred.cpu().numpy(), "std_N": std.cpu().numpy(), "true_N": true.cpu().numpy(),
-              "F_demo_N": cond[..., cond_slice("F_demo")].cpu().numpy()}
-    L_pred = np.asarray(model.predicted_task_loss(pred.double(), std.double(), cond[..., cond_slice("F_demo")].double())
-                        .cpu().numpy())
+              "F_demo_N": F_demo.cpu().numpy()}
+    L_pred = model.predicted_task_loss(pred.double(), std.double(), F_demo.double()).cpu().numpy()
     scores, L_pred, L_true = force_prediction_metrics(arrays["pred_N"], arrays["true_N"], arrays["F_demo_N"], skills,
                                                       L_pred=L_pred)
     metrics: dict[str, float] = {"L_MSE": float(mse.compute()), "R": scores["R_pooled"], **scores,
