@@ -1,21 +1,25 @@
 """Can a model of the force *distribution* rank a skill's schedules better than a model of its *mean*?
 
     python -m dcm.spread_check --dataset sim_contact --bowl-offset-mm 0.5 2 5 --out reports/spread_check_sim_contact
+    python -m dcm.spread_check --bowl-offset-mm 0.5 2 --friction-std 0.3 --n-truth 16 --out reports/spread_check_n16
 
 The paper's case for a diffusion model is that contact is uncertain: the same inputs give different forces.
 This check asks, with the simulator as an oracle, how much that can be worth on the tuner's question. For
 every skill of the chosen splits it records the demo once and draws random per-phase schedules (the search
-space of ``conf/stiffness/default.yaml``). Each schedule is rolled out ``2k + 1`` times: ``2k`` times with
-different simulator seeds, i.e. different draws of the domain's per-rollout perturbation
-(``bowl_offset_std_m``), and once without it:
+space of ``conf/stiffness/default.yaml``). Each schedule is rolled out ``k + n + 1`` times (``n`` truth
+rollouts, ``--n-truth``, k by default): ``k + n`` times with different simulator seeds, i.e. different draws
+of the domain's per-rollout perturbation (the bowl's height, ``bowl_offset_std_m``, or its friction,
+``bowl_friction_std``), and once without it:
 
 * rollouts ``1..k`` stand in for a perfect **diffusion model** drawing k samples: ``L_task`` averaged over
   them (``distribution_k``), or of the first one alone (``distribution_1``);
 * the unperturbed rollout stands in for a perfect **single-pass model**, which learns the conditional mean
-  of the force: the force responds about linearly to a small bowl offset (K times it, while in contact), so
-  its mean is the force with the bowl where the demo had it; ``L_task`` of that force (``mean_force``);
-* rollouts ``k+1..2k`` are the truth: the first one is the **label** a dataset holds (one realisation),
-  their mean ``L_task`` the **expected** loss a tuner wants to minimise.
+  of the force: the force responds about linearly to a small bowl offset (K times it, while in contact) and
+  to the friction coefficient (the drag is friction times the normal force), so its mean is the force of
+  the nominal bowl; ``L_task`` of that force (``mean_force``);
+* rollouts ``k+1..k+n`` are the truth: the first one is the **label** a dataset holds (one realisation),
+  their mean ``L_task`` the **expected** loss a tuner wants to minimise. The expected loss is itself an
+  average of n draws; a larger n makes it the truth a ranking can be judged against.
 
 Each predictor is correlated with both truths within each skill (Pearson, averaged over skills, as
 ``R_within``). With no per-rollout perturbation every rollout is the same, so all three rank perfectly
@@ -43,19 +47,22 @@ PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
 TRUTHS = ("label", "expected")
 
 
-def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int) -> dict[str, float]:
-    """Each oracle predictor's and truth's L_task from ``forces`` (2k + 1, H, 6) of one schedule: rollouts
-    ``0..k-1`` are the distribution model's samples, ``k..2k-1`` the truth (the first the label, all of them
-    the expected loss), the last one the unperturbed force the mean model predicts."""
-    if forces.shape[0] != 2 * k + 1:
-        raise ValueError(f"need 2k + 1 = {2 * k + 1} rollouts, got {forces.shape[0]}")
+def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int,
+                  n_truth: int | None = None) -> dict[str, float]:
+    """Each oracle predictor's and truth's L_task from ``forces`` (k + n + 1, H, 6) of one schedule, with
+    ``n = n_truth`` (k by default): rollouts ``0..k-1`` are the distribution model's samples, the next n the
+    truth (the first the label, all of them the expected loss), the last one the unperturbed force the mean
+    model predicts."""
+    n = k if n_truth is None else n_truth
+    if forces.shape[0] != k + n + 1:
+        raise ValueError(f"need k + n_truth + 1 = {k + n + 1} rollouts, got {forces.shape[0]}")
     per_rollout = task_loss(forces, force_demo[None])
     return {
         "distribution_1": float(per_rollout[0]),
         "distribution_k": float(per_rollout[:k].mean()),
-        "mean_force": float(per_rollout[2 * k]),
+        "mean_force": float(per_rollout[k + n]),
         "label": float(per_rollout[k]),
-        "expected": float(per_rollout[k:2 * k].mean()),
+        "expected": float(per_rollout[k:k + n].mean()),
     }
 
 
@@ -71,9 +78,9 @@ def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, tr
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
                 rng: np.random.Generator, predictors: dict[str, Any] | None = None) -> list[dict[str, float]]:
-    """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are 2k simulators
-    that differ only in their seed, then one without the per-rollout perturbation. ``predictors`` (label ->
-    loaded predictor) add each one's L_task for the same schedules, from k samples
+    """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are k + n simulators
+    that differ only in their seed (k samples, n truths), then one without the per-rollout perturbation.
+    ``predictors`` (label -> loaded predictor) add each one's L_task for the same schedules, from k samples
     (``dcm.models.predict.predict_task_loss``)."""
     demo = sims[0].record_demo(spec)
     bounds = equal_time_phases(demo.horizon, 3)
@@ -85,8 +92,10 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
         if any(t.failed for t in trials):
             continue
         forces = np.stack([t.force_obs for t in trials])
-        rows.append({**oracle_losses(forces, np.asarray(demo.force_demo), k),
-                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in trials[:-1]]) * 1000)})
+        perturbed = trials[:-1]
+        rows.append({**oracle_losses(forces, np.asarray(demo.force_demo), k, len(perturbed) - k),
+                     "offset_std_mm": float(np.std([t.bowl_offset_m for t in perturbed]) * 1000),
+                     "friction_factor_std": float(np.std([t.bowl_friction_factor for t in perturbed]))})
         inputs.append((trials[0].x_attr, schedule))
     if rows and predictors:
         from dcm.models.predict import predict_task_loss
@@ -128,7 +137,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from tqdm import tqdm
 
     from dcm.sim.demos import DemoSpec
-    from dcm.sim.domain import DomainSpec
+    from dcm.sim.domain import PER_ROLLOUT_SPREADS, DomainSpec
     from dcm.sim.rollout import Simulator
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -137,57 +146,71 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--max-skills", type=int, default=4, help="first N skills of the chosen splits")
     parser.add_argument("--n-schedules", type=int, default=16, help="random schedules per skill")
     parser.add_argument("--k", type=int, default=4, help="samples the distribution model draws")
-    parser.add_argument("--bowl-offset-mm", type=float, nargs="+", default=[0.0, 2.0, 4.0],
-                        help="per-rollout bowl height spread(s) to compare [mm]")
+    parser.add_argument("--n-truth", type=int, default=None,
+                        help="rollouts whose mean L_task is the expected loss (default: k)")
+    parser.add_argument("--bowl-offset-mm", type=float, nargs="+", default=None,
+                        help="per-rollout bowl height spread(s) to compare [mm] (default 0 2 4 when no "
+                             "--friction-std is given)")
+    parser.add_argument("--friction-std", type=float, nargs="+", default=[],
+                        help="per-rollout log-normal spread(s) of the bowl's friction to compare")
     parser.add_argument("--predictor", nargs="*", default=[], metavar="LABEL=PATH",
                         help="also score these predictors (checkpoint, reference JSON, copy_demo) on the schedules")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="reports/spread_check")
     args = parser.parse_args(argv)
-    if args.k < 1 or args.n_schedules < 3:
-        parser.error(f"--k {args.k} must be >= 1 and --n-schedules {args.n_schedules} >= 3")
+    n_truth = args.k if args.n_truth is None else args.n_truth
+    if args.k < 1 or n_truth < 1 or args.n_schedules < 3:
+        parser.error(f"--k {args.k} and --n-truth {n_truth} must be >= 1 and --n-schedules {args.n_schedules} >= 3")
+    offsets_mm = args.bowl_offset_mm
+    if offsets_mm is None:
+        offsets_mm = [] if args.friction_std else [0.0, 2.0, 4.0]
+    spreads = [(f"bowl_offset_std_mm={v:g}", {"bowl_offset_std_m": v / 1000.0}) for v in offsets_mm]
+    spreads += [(f"bowl_friction_std={v:g}", {"bowl_friction_std": v}) for v in args.friction_std]
 
     preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error)
     predictors = load_predictors(args.predictor, parser.error)
     columns = (*PREDICTORS, *predictors)
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     domain = DomainSpec.resolve(preset["domain"]).to_dict()
+    try:
+        nominal = DomainSpec.from_dict({**domain, **{key: 0.0 for key in PER_ROLLOUT_SPREADS}})
+        perturbed = {name: DomainSpec.from_dict({**nominal.to_dict(), **fields}) for name, fields in spreads}
+    except ValueError as err:
+        parser.error(str(err))
     results: dict[str, Any] = {}
     start = time.perf_counter()
-    bar = tqdm(total=len(args.bowl_offset_mm) * len(jobs), desc="spread check", unit="skill")
-    for offset_mm in args.bowl_offset_mm:
-        skill_domain = DomainSpec.from_dict({**domain, "bowl_offset_std_m": offset_mm / 1000.0})
-        nominal = DomainSpec.from_dict({**domain, "bowl_offset_std_m": 0.0})
+    bar = tqdm(total=len(spreads) * len(jobs), desc="spread check", unit="skill")
+    for name, skill_domain in perturbed.items():
         rng = np.random.default_rng(args.seed)  # the same schedules at every spread
         skills: dict[str, list[dict[str, float]]] = {}
         for job in jobs:
             spec = DemoSpec.from_dict(job.spec, where=f"{args.dataset} skill {job.index}")
             sims = [Simulator(preset["embodiment"], spec.bowl, d, seed=args.seed + i, damping=space["damping"])
-                    for i, d in enumerate([skill_domain] * (2 * args.k) + [nominal])]
+                    for i, d in enumerate([skill_domain] * (args.k + n_truth) + [nominal])]
             skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng,
                                                                  predictors)
             bar.update()
         label = np.array([r["label"] for rows in skills.values() for r in rows])
-        results[f"{offset_mm:g}"] = {
-            "bowl_offset_std_mm": offset_mm,
+        results[name] = {
+            "domain": {key: getattr(skill_domain, key) for key in PER_ROLLOUT_SPREADS},
             "R_within": {truth: {p: within_skill_r(skills, p, truth) for p in columns} for truth in TRUTHS},
             "L_task_label_median": float(np.median(label)),
             "skills": skills,
         }
     bar.close()
     out = {"dataset": args.dataset, "splits": args.splits, "embodiment": preset["embodiment"], "k": args.k,
-           "n_schedules": args.n_schedules, "seed": args.seed, "predictors": args.predictor,
+           "n_truth": n_truth, "n_schedules": args.n_schedules, "seed": args.seed, "predictors": args.predictor,
            "seconds": time.perf_counter() - start,
-           "by_offset_mm": results}
+           "by_spread": results}
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "spread_check.json").write_text(json.dumps(out, indent=1))
-    print(f"R_within ({len(jobs)} skills, {args.n_schedules} schedules each, k = {args.k}), against one labelled "
-          "rollout / against the expected L_task")
-    print("bowl offset std [mm] | " + " | ".join(columns) + " | median label L_task [N]")
-    for row in results.values():
+    print(f"R_within ({len(jobs)} skills, {args.n_schedules} schedules each, k = {args.k}, n_truth = {n_truth}), "
+          "against one labelled rollout / against the expected L_task")
+    print("per-rollout spread | " + " | ".join(columns) + " | median label L_task [N]")
+    for name, row in results.items():
         r = row["R_within"]
-        print(f"{row['bowl_offset_std_mm']:g} | "
+        print(f"{name} | "
               + " | ".join(f"{r['label'][p]:.3f} / {r['expected'][p]:.3f}" for p in columns)
               + f" | {row['L_task_label_median']:.2f}")
     print(f"wrote {path / 'spread_check.json'} in {out['seconds']:.0f} s")

@@ -1,4 +1,5 @@
-"""A bowl re-placed between rollouts (``DomainSpec.bowl_offset_std_m``) and the oracle spread check."""
+"""A bowl re-placed between rollouts, its surface changing (``DomainSpec.bowl_offset_std_m``,
+``bowl_friction_std``), and the oracle spread check."""
 
 import json
 
@@ -59,8 +60,11 @@ def test_oracle_losses_and_within_skill_r_on_known_cases() -> None:
     scale = np.sqrt(1 / 3)
     assert losses == pytest.approx({"distribution_1": 2 * scale, "distribution_k": 2 * scale, "mean_force": 0.0,
                                     "label": 0.0, "expected": 2 * scale})
-    with pytest.raises(ValueError, match="2k \\+ 1 = 5"):
+    with pytest.raises(ValueError, match="k \\+ n_truth \\+ 1 = 5"):
         spread_check.oracle_losses(forces[:4], force_demo, k=2)
+    # One sample, three truths: the expected loss is the mean over rollouts 1..3.
+    assert spread_check.oracle_losses(forces, force_demo, k=1, n_truth=3)["expected"] == pytest.approx(
+        (2 + 0 + 4) * scale / 3)
     skills = {"a": [{"label": 1.0, "p": 1.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 3.5}],
               "b": [{"label": 1.0, "p": 3.0}, {"label": 2.0, "p": 2.0}, {"label": 3.0, "p": 1.0}]}
     assert spread_check.within_skill_r(skills, "p") == pytest.approx((0.9933992677987828 - 1.0) / 2)
@@ -72,7 +76,7 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     has R = 1; with one, the rollouts differ and the oracles fall below 1."""
     result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "4", "--k", "1",
                                 "--bowl-offset-mm", "0", "3", "--out", str(tmp_path), "--predictor", "copy=copy_demo"])
-    exact, offset = result["by_offset_mm"]["0"], result["by_offset_mm"]["3"]
+    exact, offset = result["by_spread"]["bowl_offset_std_mm=0"], result["by_spread"]["bowl_offset_std_mm=3"]
     for truth in spread_check.TRUTHS:
         assert {p: exact["R_within"][truth][p] for p in spread_check.PREDICTORS} == {
             p: pytest.approx(1.0) for p in spread_check.PREDICTORS}
@@ -81,3 +85,35 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     assert any(r["label"] != r["distribution_1"] for r in rows)
     assert all(r["copy"] == 0.0 for r in rows), "copying F_demo predicts no force error at all"
     assert json.loads((tmp_path / "spread_check.json").read_text())["k"] == 1
+
+
+def test_the_drag_follows_the_drawn_friction(demo) -> None:
+    """A surface that changes between trials: each rollout draws its friction factor (mean-preserving
+    log-normal), and the sliding tool's drag is that friction times the normal force."""
+    slide = Simulator("tool", FLAT).record_demo(
+        DemoSpec.from_dict({**PRESS.to_dict(), "params": {"start_xy_m": [-0.04, 0.0], "end_xy_m": [0.04, 0.0]}}))
+    factors = []
+    for seed in range(3):
+        sim = Simulator("tool", FLAT, DomainSpec(bowl_friction_std=0.3), seed=seed)
+        trial = sim.rollout(slide, sim.constant_stiffness(slide, 500.0))
+        sliding = slice(slide.horizon // 2, 3 * slide.horizon // 4)
+        drag, normal = -trial.force_obs[sliding, 0].mean(), trial.force_obs[sliding, 2].mean()
+        assert drag == pytest.approx(FLAT.friction * trial.bowl_friction_factor * normal, rel=0.1)
+        factors.append(trial.bowl_friction_factor)
+    assert len(set(factors)) == 3 and all(0.3 < f < 3 for f in factors)
+    plain = Simulator("tool", FLAT)
+    assert plain.rollout(demo, plain.constant_stiffness(demo, 500.0)).bowl_friction_factor == 1.0
+    assert "bowl_friction_std" not in DomainSpec().to_dict()
+    with pytest.raises(DomainSpecError, match="bowl_friction_std"):
+        DomainSpec(bowl_friction_std=-0.1)
+    draws = [Simulator("tool", FLAT, DomainSpec(bowl_friction_std=0.3))._bowl_draw(np.random.default_rng(i))[1]
+             for i in range(2000)]
+    assert np.mean(draws) == pytest.approx(1.0, abs=0.02)
+
+
+def test_the_check_compares_friction_spreads_with_more_truth_rollouts(tmp_path) -> None:
+    result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "3", "--k", "1",
+                                "--n-truth", "2", "--friction-std", "0.3", "--out", str(tmp_path)])
+    assert list(result["by_spread"]) == ["bowl_friction_std=0.3"] and result["n_truth"] == 2
+    rows = next(iter(result["by_spread"]["bowl_friction_std=0.3"]["skills"].values()))
+    assert all(r["friction_factor_std"] > 0 and r["offset_std_mm"] == 0 for r in rows)

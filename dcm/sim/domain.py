@@ -8,7 +8,8 @@ transfer can be studied without a robot.
 Who applies what: the embodiment applies the physical parts when it builds its MuJoCo model
 (``friction_scale``, ``solref_timeconst_scale``, ``joint_frictionloss``, ``joint_damping``,
 ``tool_mass_scale``); the ``Simulator`` applies sensing (``ft_bias``, ``ft_noise_std``, ``ft_lowpass_hz``)
-and ``latency_steps``, and draws each rollout's ``bowl_offset_std_m`` (the bowl re-placed between trials).
+and ``latency_steps``, and draws each rollout's bowl height and friction (``bowl_offset_std_m``,
+``bowl_friction_std``: the bowl re-placed between trials, its surface changing).
 """
 
 from __future__ import annotations
@@ -19,6 +20,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from dcm.sim.spec_io import SpecIO
+
+# Fields drawn anew for every rollout, so the same inputs give a distribution of forces.
+PER_ROLLOUT_SPREADS = ("bowl_offset_std_m", "bowl_friction_std")
 
 
 class DomainSpecError(ValueError):
@@ -42,8 +46,11 @@ class DomainSpec(SpecIO):
     ``latency_steps`` delays attractor and stiffness commands by whole control periods;
     ``bowl_offset_std_m`` [m] is the spread of the bowl's height from one rollout to the next (the bowl is
     re-placed between trials; the demo and the attractor know only where it stood when the demo was recorded).
-    It is the one perturbation that differs between rollouts of the same inputs, so the force is a
-    distribution given the model's conditions, and its spread grows with stiffness.
+    ``bowl_friction_std`` is the log-normal spread of the bowl's sliding friction from one rollout to the next
+    (a surface wet in one trial and dusty in the next), mean-preserving: each rollout's friction is the
+    nominal one times ``exp(s z - s^2 / 2)``. These two are the perturbations that differ between rollouts of
+    the same inputs, so the force is a distribution given the model's conditions; the offset's spread grows
+    with stiffness.
     """
 
     spec_kind: ClassVar[str] = "domain"
@@ -60,6 +67,7 @@ class DomainSpec(SpecIO):
     ft_lowpass_hz: float = 0.0
     latency_steps: int = 0
     bowl_offset_std_m: float = 0.0
+    bowl_friction_std: float = 0.0
 
     def __post_init__(self) -> None:
         self.ft_bias = _vec6(self.ft_bias, "ft_bias")
@@ -76,6 +84,7 @@ class DomainSpec(SpecIO):
             "ft_lowpass_hz": (self.ft_lowpass_hz, 0.0, 1e4),
             "latency_steps": (self.latency_steps, 0, 20),
             "bowl_offset_std_m": (self.bowl_offset_std_m, 0.0, 0.02),
+            "bowl_friction_std": (self.bowl_friction_std, 0.0, 1.0),
         }
         for key, (value, low, high) in checks.items():
             if not np.isfinite(value) or not (low <= value <= high):
@@ -90,11 +99,12 @@ class DomainSpec(SpecIO):
         return any(self.ft_bias) or any(self.ft_noise_std) or self.ft_lowpass_hz > 0
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields as plain values. ``bowl_offset_std_m`` is left out while it is 0, so that datasets and
-        tuning logs written before the field existed keep their fingerprints."""
+        """The fields as plain values. The per-rollout spreads are left out while they are 0, so that datasets
+        and tuning logs written before the fields existed keep their fingerprints."""
         out = asdict(self)
-        if not self.bowl_offset_std_m:
-            del out["bowl_offset_std_m"]
+        for key in PER_ROLLOUT_SPREADS:
+            if not out[key]:
+                del out[key]
         out["ft_bias"] = list(self.ft_bias)
         out["ft_noise_std"] = list(self.ft_noise_std)
         return out

@@ -8,7 +8,8 @@ Timing: ``control_hz = 20`` by default (``dt = 0.05 s``, 25 physics substeps of 
 gives ``H = 160`` control steps. Step ``k`` applies command ``k`` for one period and records the state at
 its end.
 
-Determinism: sensor noise and the bowl's offset (``DomainSpec.bowl_offset_std_m``) are drawn from a
+Determinism: sensor noise and the bowl's offset and friction (``DomainSpec.bowl_offset_std_m``,
+``bowl_friction_std``) are drawn from a
 generator seeded by the simulator seed and a hash of the inputs, so the same inputs give identical arrays,
 whatever ran before; another simulator seed gives another draw.
 """
@@ -97,6 +98,7 @@ class Trial:
     stiffness_applied: np.ndarray | None = None  # after low-pass filtering, what the controller used
     failed_step: int = -1
     bowl_offset_m: float = 0.0  # how far the bowl stood above where the demo had it (domain.bowl_offset_std_m)
+    bowl_friction_factor: float = 1.0  # the bowl's friction in this rollout ÷ the nominal (domain.bowl_friction_std)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -127,22 +129,26 @@ class DivergenceBounds:
 
 
 @contextmanager
-def _bowl_raised(emb: Embodiment, offset_m: float) -> Iterator[None]:
-    """Raise the bowl geom by ``offset_m`` for one rollout. Poses and divergence checks stay in the nominal
-    bowl frame, as the controller believes it to be."""
-    if not offset_m:
+def _bowl_replaced(emb: Embodiment, offset_m: float, friction_factor: float) -> Iterator[None]:
+    """Raise the bowl geom by ``offset_m`` and scale its sliding friction by ``friction_factor`` for one
+    rollout. Poses and divergence checks stay in the nominal bowl frame, as the controller believes it to be;
+    the bowl's contact priority makes its friction the contact's."""
+    if not offset_m and friction_factor == 1.0:
         yield
         return
     model = emb.model
     geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, BOWL_GEOM)
     nominal_z, sameframe = float(model.geom_pos[geom, 2]), int(model.geom_sameframe[geom])
+    nominal_friction = float(model.geom_friction[geom, 0])
     model.geom_sameframe[geom] = 0  # a geom compiled at its body's frame ignores geom_pos otherwise
     model.geom_pos[geom, 2] = nominal_z + offset_m
+    model.geom_friction[geom, 0] = nominal_friction * friction_factor
     try:
         yield
     finally:
         model.geom_pos[geom, 2] = nominal_z
         model.geom_sameframe[geom] = sameframe
+        model.geom_friction[geom, 0] = nominal_friction
 
 
 class Simulator:
@@ -255,8 +261,8 @@ class Simulator:
         emb = self.embodiment_for(demo.spec.bowl)
         digest = (x_demo.tobytes(), force_demo.tobytes(), stiffness.tobytes())
         rng = self._rng("rollout", *digest)
-        offset = float(rng.normal(0.0, self.domain.bowl_offset_std_m)) if self.domain.bowl_offset_std_m else 0.0
-        with _bowl_raised(emb, offset):
+        offset, friction_factor = self._bowl_draw(rng)
+        with _bowl_replaced(emb, offset, friction_factor):
             run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng)
         if run.failed:
             l_task = float("inf")
@@ -277,7 +283,16 @@ class Simulator:
             stiffness_applied=applied,
             failed_step=run.failed_step,
             bowl_offset_m=offset,
+            bowl_friction_factor=friction_factor,
         )
+
+    def _bowl_draw(self, rng: np.random.Generator) -> tuple[float, float]:
+        """This rollout's bowl offset [m] and friction factor. Each is drawn only when its spread is set, so a
+        domain without them draws its sensor noise as before they existed."""
+        offset_std, friction_std = self.domain.bowl_offset_std_m, self.domain.bowl_friction_std
+        offset = float(rng.normal(0.0, offset_std)) if offset_std else 0.0
+        factor = float(np.exp(rng.normal(0.0, friction_std) - friction_std**2 / 2)) if friction_std else 1.0
+        return offset, factor
 
     def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
         """The attractor (H, 6) a rollout of the commanded ``stiffness`` uses: the paper's equation with the
