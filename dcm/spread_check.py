@@ -77,7 +77,8 @@ def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, tr
 
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
-                rng: np.random.Generator, predictors: dict[str, Any] | None = None) -> list[dict[str, float]]:
+                rng: np.random.Generator, predictors: dict[str, Any] | None = None,
+                model_samples: int | None = None) -> list[dict[str, float]]:
     """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are k + n simulators
     that differ only in their seed (k samples, n truths), then one without the per-rollout perturbation.
     ``predictors`` (label -> loaded predictor) add each one's L_task for the same schedules, from k samples
@@ -103,7 +104,7 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
         x_attr, stiffness = (np.stack(a) for a in zip(*inputs))
         x_demo, force_demo = (np.repeat(np.asarray(a)[None], len(rows), 0) for a in (demo.x_demo, demo.force_demo))
         for label, model in predictors.items():
-            losses = predict_task_loss(model, x_demo, force_demo, x_attr, stiffness, n_samples=k)
+            losses = predict_task_loss(model, x_demo, force_demo, x_attr, stiffness, n_samples=model_samples or k)
             for row, loss in zip(rows, losses):
                 row[label] = float(loss)
     return rows
@@ -146,6 +147,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--max-skills", type=int, default=4, help="first N skills of the chosen splits")
     parser.add_argument("--n-schedules", type=int, default=16, help="random schedules per skill")
     parser.add_argument("--k", type=int, default=4, help="samples the distribution model draws")
+    parser.add_argument("--model-samples", type=int, default=None,
+                        help="samples a --predictor DCM draws per schedule (default: k)")
     parser.add_argument("--n-truth", type=int, default=None,
                         help="rollouts whose mean L_task is the expected loss (default: k)")
     parser.add_argument("--bowl-offset-mm", type=float, nargs="+", default=None,
@@ -159,8 +162,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--out", default="reports/spread_check")
     args = parser.parse_args(argv)
     n_truth = args.k if args.n_truth is None else args.n_truth
-    if args.k < 1 or n_truth < 1 or args.n_schedules < 3:
-        parser.error(f"--k {args.k} and --n-truth {n_truth} must be >= 1 and --n-schedules {args.n_schedules} >= 3")
+    model_samples = args.k if args.model_samples is None else args.model_samples
+    if min(args.k, n_truth, model_samples) < 1 or args.n_schedules < 3:
+        parser.error(f"--k {args.k}, --n-truth {n_truth} and --model-samples {model_samples} must be >= 1 and "
+                     f"--n-schedules {args.n_schedules} >= 3")
     offsets_mm = args.bowl_offset_mm
     if offsets_mm is None:
         offsets_mm = [] if args.friction_std else [0.0, 2.0, 4.0]
@@ -188,7 +193,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             sims = [Simulator(preset["embodiment"], spec.bowl, d, seed=args.seed + i, damping=space["damping"])
                     for i, d in enumerate([skill_domain] * (args.k + n_truth) + [nominal])]
             skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng,
-                                                                 predictors)
+                                                                 predictors, model_samples)
             bar.update()
         label = np.array([r["label"] for rows in skills.values() for r in rows])
         results[name] = {
@@ -199,7 +204,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         }
     bar.close()
     out = {"dataset": args.dataset, "splits": args.splits, "embodiment": preset["embodiment"], "k": args.k,
-           "n_truth": n_truth, "n_schedules": args.n_schedules, "seed": args.seed, "predictors": args.predictor,
+           "n_truth": n_truth, "model_samples": model_samples, "n_schedules": args.n_schedules, "seed": args.seed, "predictors": args.predictor,
            "seconds": time.perf_counter() - start,
            "by_spread": results}
     path = Path(args.out)
