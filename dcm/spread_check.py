@@ -1,7 +1,7 @@
 """Can a model of the force *distribution* rank a skill's schedules better than a model of its *mean*?
 
     python -m dcm.spread_check --dataset sim_contact --bowl-offset-mm 0.5 2 5 --out reports/spread_check_sim_contact
-    python -m dcm.spread_check --bowl-offset-mm 0.5 2 --friction-std 0.3 --n-truth 16 --out reports/spread_check_n16
+    python -m dcm.spread_check --bowl-offset-mm 0.5 --friction-std 0.3 --n-truth 16 --out reports/spread_check_n16
 
 The paper's case for a diffusion model is that contact is uncertain: the same inputs give different forces.
 This check asks, with the simulator as an oracle, how much that can be worth on the tuner's question. For
@@ -81,8 +81,8 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
                 model_samples: int | None = None) -> list[dict[str, float]]:
     """Oracle losses for ``n_schedules`` random 3-phase schedules of one skill; ``sims`` are k + n simulators
     that differ only in their seed (k samples, n truths), then one without the per-rollout perturbation.
-    ``predictors`` (label -> loaded predictor) add each one's L_task for the same schedules, from k samples
-    (``dcm.models.predict.predict_task_loss``)."""
+    ``predictors`` (label -> loaded predictor) add each one's L_task for the same schedules, from
+    ``model_samples`` samples, k by default (``dcm.models.predict.predict_task_loss``)."""
     demo = sims[0].record_demo(spec)
     bounds = equal_time_phases(demo.horizon, 3)
     low, high = float(space["min_Npm"]), float(space["max_Npm"])
@@ -204,8 +204,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         }
     bar.close()
     out = {"dataset": args.dataset, "splits": args.splits, "embodiment": preset["embodiment"], "k": args.k,
-           "n_truth": n_truth, "model_samples": model_samples, "n_schedules": args.n_schedules, "seed": args.seed, "predictors": args.predictor,
-           "seconds": time.perf_counter() - start,
+           "n_truth": n_truth, "model_samples": model_samples, "n_schedules": args.n_schedules,
+           "seed": args.seed, "predictors": args.predictor, "seconds": time.perf_counter() - start,
            "by_spread": results}
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)

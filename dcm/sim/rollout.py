@@ -9,9 +9,8 @@ gives ``H = 160`` control steps. Step ``k`` applies command ``k`` for one period
 its end.
 
 Determinism: sensor noise and the bowl's offset and friction (``DomainSpec.bowl_offset_std_m``,
-``bowl_friction_std``) are drawn from a
-generator seeded by the simulator seed and a hash of the inputs, so the same inputs give identical arrays,
-whatever ran before; another simulator seed gives another draw.
+``bowl_friction_std``) are drawn from a generator seeded by the simulator seed and a hash of the inputs, so
+the same inputs give identical arrays, whatever ran before; another simulator seed gives another draw.
 """
 
 from __future__ import annotations
