@@ -45,6 +45,8 @@ from dcm.data.task_check import CONF_DIR, preset_skills
 
 PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
 TRUTHS = ("label", "expected")
+ROW_FACTS = ("label", "expected", "offset_std_mm", "friction_factor_std")  # a row's entries that predict nothing
+TOP_PICKS = 3
 
 
 def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int,
@@ -74,6 +76,61 @@ def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, tr
     rows = [(r[predictor], r[truth], i) for i, skill in enumerate(skills.values()) for r in skill]
     pred, true, ids = (np.array(a) for a in zip(*rows))
     return within_skill_correlation(pred, true, ids)[0]
+
+
+def top_pick_regret(skills: dict[str, list[dict[str, float]]], predictor: str, n_top: int = TOP_PICKS) -> float:
+    """What a tuner keeping a predictor's ``n_top`` best-ranked schedules of a skill loses in expected loss:
+    (their mean expected L_task - that of the truly best ``n_top``) / (the skill's mean - the same), averaged
+    over skills. 0 keeps the truly best, 1 is a random pick, above 1 worse than random; NaN for a predictor
+    that ranks nothing (copy-F_demo)."""
+    regrets = []
+    for rows in skills.values():
+        expected, pred = (np.array([r[key] for r in rows]) for key in ("expected", predictor))
+        if np.ptp(pred) == 0 or np.ptp(expected) == 0:
+            continue
+        kept, best = expected[np.argsort(pred, kind="stable")[:n_top]], np.sort(expected)[:n_top]
+        regrets.append((kept.mean() - best.mean()) / (expected.mean() - best.mean()))
+    return float(np.mean(regrets)) if regrets else float("nan")
+
+
+def summarise(skills: dict[str, list[dict[str, float]]]) -> dict[str, Any]:
+    """Every predictor's R_within against both truths and its top-pick regret, from the rows alone."""
+    first = next((rows[0] for rows in skills.values() if rows), None)
+    if first is None:
+        raise ValueError("no schedule of any skill was rolled out without failing; nothing to score")
+    columns = [key for key in first if key not in ROW_FACTS]
+    label = np.array([r["label"] for rows in skills.values() for r in rows])
+    return {
+        "R_within": {truth: {p: within_skill_r(skills, p, truth) for p in columns} for truth in TRUTHS},
+        f"top{TOP_PICKS}_regret": {p: top_pick_regret(skills, p) for p in columns},
+        "L_task_label_median": float(np.median(label)),
+    }
+
+
+def rescore(path: Path) -> dict[str, Any]:
+    """Recompute the statistics of a stored ``spread_check.json`` from its rows, without a rollout."""
+    out = json.loads(path.read_text())
+    if "by_spread" not in out:
+        raise ValueError(f"{path}: no 'by_spread' entry; rescore reads files written since spreads were keyed")
+    for row in out["by_spread"].values():
+        row.update(summarise(row["skills"]))
+    path.write_text(json.dumps(out, indent=1))
+    return out
+
+
+def print_summary(out: dict[str, Any]) -> None:
+    results = out["by_spread"]
+    n_skills = len(next(iter(results.values()))["skills"])
+    columns = list(next(iter(results.values()))["R_within"]["label"])
+    print(f"R_within ({n_skills} skills, {out['n_schedules']} schedules each, k = {out['k']}, n_truth = "
+          f"{out['n_truth']}), against one labelled rollout / against the expected L_task; then the top-"
+          f"{TOP_PICKS} regret (0 = the best schedules kept, 1 = a random pick)")
+    print("per-rollout spread | " + " | ".join(columns) + " | median label L_task [N]")
+    for name, row in results.items():
+        r, regret = row["R_within"], row[f"top{TOP_PICKS}_regret"]
+        print(f"{name} | " + " | ".join(f"{r['label'][p]:.3f} / {r['expected'][p]:.3f}" for p in columns)
+              + f" | {row['L_task_label_median']:.2f}")
+        print(f"{name}, top-{TOP_PICKS} regret | " + " | ".join(f"{regret[p]:.2f}" for p in columns) + " |")
 
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
@@ -160,7 +217,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                         help="also score these predictors (checkpoint, reference JSON, copy_demo) on the schedules")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="reports/spread_check")
+    parser.add_argument("--rescore", metavar="JSON", help="recompute the statistics of a stored spread_check.json "
+                        "from its rows (no rollouts), rewrite it and print them")
     args = parser.parse_args(argv)
+    if args.rescore:
+        try:
+            out = rescore(Path(args.rescore))
+        except (OSError, ValueError) as err:
+            parser.error(str(err))
+        print_summary(out)
+        return out
     n_truth = args.k if args.n_truth is None else args.n_truth
     model_samples = args.k if args.model_samples is None else args.model_samples
     if min(args.k, n_truth, model_samples) < 1 or args.n_schedules < 3:
@@ -174,7 +240,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error)
     predictors = load_predictors(args.predictor, parser.error)
-    columns = (*PREDICTORS, *predictors)
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     domain = DomainSpec.resolve(preset["domain"]).to_dict()
     try:
@@ -195,13 +260,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims, spec, args.n_schedules, args.k, space, rng,
                                                                  predictors, model_samples)
             bar.update()
-        label = np.array([r["label"] for rows in skills.values() for r in rows])
-        results[name] = {
-            "domain": {key: getattr(skill_domain, key) for key in PER_ROLLOUT_SPREADS},
-            "R_within": {truth: {p: within_skill_r(skills, p, truth) for p in columns} for truth in TRUTHS},
-            "L_task_label_median": float(np.median(label)),
-            "skills": skills,
-        }
+        results[name] = {"domain": {key: getattr(skill_domain, key) for key in PER_ROLLOUT_SPREADS},
+                         **summarise(skills), "skills": skills}
     bar.close()
     out = {"dataset": args.dataset, "splits": args.splits, "embodiment": preset["embodiment"], "k": args.k,
            "n_truth": n_truth, "model_samples": model_samples, "n_schedules": args.n_schedules,
@@ -210,14 +270,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "spread_check.json").write_text(json.dumps(out, indent=1))
-    print(f"R_within ({len(jobs)} skills, {args.n_schedules} schedules each, k = {args.k}, n_truth = {n_truth}), "
-          "against one labelled rollout / against the expected L_task")
-    print("per-rollout spread | " + " | ".join(columns) + " | median label L_task [N]")
-    for name, row in results.items():
-        r = row["R_within"]
-        print(f"{name} | "
-              + " | ".join(f"{r['label'][p]:.3f} / {r['expected'][p]:.3f}" for p in columns)
-              + f" | {row['L_task_label_median']:.2f}")
+    print_summary(out)
     print(f"wrote {path / 'spread_check.json'} in {out['seconds']:.0f} s")
     return out
 

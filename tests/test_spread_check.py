@@ -71,6 +71,21 @@ def test_oracle_losses_and_within_skill_r_on_known_cases() -> None:
     assert spread_check.within_skill_r(skills, "p", truth="p") == pytest.approx(1.0)
 
 
+def test_top_pick_regret_on_known_cases() -> None:
+    """0 when a predictor keeps the truly best schedules, 1 for the average pick, above 1 when it keeps the
+    worst; NaN for one that ranks nothing."""
+    expected = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]  # mean 4, best 1
+    rows = [{"expected": e, "label": e, "right": e, "wrong": -e, "flat": 0.0,
+             "middle": abs(e - 4.0) if e != 4.0 else -1.0} for e in expected]
+    skills = {"a": rows}
+    assert spread_check.top_pick_regret(skills, "right") == pytest.approx(0.0)  # keeps 1, 2, 3, the best three
+    assert spread_check.top_pick_regret(skills, "wrong") == pytest.approx((6 - 2) / (4 - 2))  # keeps 5, 6, 7
+    assert spread_check.top_pick_regret(skills, "right", n_top=1) == pytest.approx(0.0)
+    assert spread_check.top_pick_regret(skills, "wrong", n_top=1) == pytest.approx(2.0)  # keeps 7: (7-1)/(4-1)
+    assert spread_check.top_pick_regret(skills, "middle", n_top=1) == pytest.approx(1.0)  # keeps 4, the mean
+    assert np.isnan(spread_check.top_pick_regret(skills, "flat"))
+
+
 def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     """The known answer: with no per-rollout perturbation every rollout repeats the label, so every oracle
     has R = 1; with one, the rollouts differ and the oracles fall below 1."""
@@ -84,7 +99,15 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     assert len(rows) == 4 and all(r["offset_std_mm"] > 0 for r in rows)
     assert any(r["label"] != r["distribution_1"] for r in rows)
     assert all(r["copy"] == 0.0 for r in rows), "copying F_demo predicts no force error at all"
-    assert json.loads((tmp_path / "spread_check.json").read_text())["k"] == 1
+    stored = tmp_path / "spread_check.json"
+    assert json.loads(stored.read_text())["k"] == 1
+    assert exact["top3_regret"]["mean_force"] == pytest.approx(0.0)
+    # Rescoring a stored file recomputes every statistic from its rows alone: the same bytes again.
+    written = stored.read_text()
+    spread_check.main(["--rescore", str(stored)])
+    assert stored.read_text() == written
+    with pytest.raises(SystemExit):
+        spread_check.main(["--rescore", str(tmp_path / "missing.json")])
 
 
 def test_the_drag_follows_the_drawn_friction(demo) -> None:
