@@ -22,11 +22,13 @@ of the domain's per-rollout perturbation (the bowl's height, ``bowl_offset_std_m
   average of n draws; a larger n makes it the truth a ranking can be judged against.
 
 Each predictor is correlated with both truths within each skill (Pearson, averaged over skills, as
-``R_within``). With no per-rollout perturbation every rollout is the same, so all three rank perfectly
-(R = 1): the known answer. The gap between ``distribution_k`` and ``mean_force`` is the most a distribution
-model can gain over a mean model in ranking, before either has to learn anything. ``--predictor
-LABEL=PATH`` scores trained models (and references) on the same schedules beside the oracles, a DCM both
-ways: L_task of its k samples' mean force, and their RMS L_task (``task_loss=over_samples``).
+``R_within``), and its **top-3 regret** says what a tuner keeping its three best-ranked schedules of a skill
+loses in expected loss (``top_pick_regret``); ``--rescore JSON`` recomputes both from a stored run's rows.
+With no per-rollout perturbation every rollout is the same, so all three rank perfectly (R = 1): the known
+answer. The gap between ``distribution_k`` and ``mean_force`` is what a model drawing k exact samples gains
+over a model of the mean, before either has to learn anything. ``--predictor LABEL=PATH`` scores trained
+models (and references) on the same schedules beside the oracles, a DCM both ways: L_task of its samples'
+mean force, and their RMS L_task (``task_loss=over_samples``).
 """
 
 from __future__ import annotations
