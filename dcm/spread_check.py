@@ -203,7 +203,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--dataset", default="sim_contact", help="preset in conf/dataset/")
     parser.add_argument("--splits", nargs="+", default=["valid"])
-    parser.add_argument("--max-skills", type=int, default=4, help="first N skills of the chosen splits")
+    parser.add_argument("--max-skills", type=int, default=4, help="N skills of the chosen splits")
+    parser.add_argument("--first-skill", type=int, default=0, help="skip the chosen splits' first skills")
     parser.add_argument("--n-schedules", type=int, default=16, help="random schedules per skill")
     parser.add_argument("--k", type=int, default=4, help="samples the distribution model draws")
     parser.add_argument("--model-samples", type=int, default=None,
@@ -240,7 +241,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     spreads = [(f"bowl_offset_std_mm={v:g}", {"bowl_offset_std_m": v / 1000.0}) for v in offsets_mm]
     spreads += [(f"bowl_friction_std={v:g}", {"bowl_friction_std": v}) for v in args.friction_std]
 
-    preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error)
+    preset, jobs = preset_skills(args.dataset, args.splits, args.seed, None, parser.error)
+    jobs = jobs[args.first_skill:args.first_skill + args.max_skills]
+    if args.first_skill < 0 or not jobs:
+        parser.error(f"--first-skill {args.first_skill} --max-skills {args.max_skills}: no skill of {args.splits} left")
     predictors = load_predictors(args.predictor, parser.error)
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     domain = DomainSpec.resolve(preset["domain"]).to_dict()

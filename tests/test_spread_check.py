@@ -108,6 +108,8 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     assert stored.read_text() == written
     with pytest.raises(SystemExit):
         spread_check.main(["--rescore", str(tmp_path / "missing.json")])
+    with pytest.raises(SystemExit):  # past the last skill of the split
+        spread_check.main(["--dataset", "tiny", "--first-skill", "50", "--out", str(tmp_path)])
 
 
 def test_the_drag_follows_the_drawn_friction(demo) -> None:
