@@ -121,6 +121,7 @@ def rescore(path: Path) -> dict[str, Any]:
 
 
 def print_summary(out: dict[str, Any]) -> None:
+    """The run's statistics as a table, a row per spread and a column per predictor."""
     results = out["by_spread"]
     n_skills = len(next(iter(results.values()))["skills"])
     columns = list(next(iter(results.values()))["R_within"]["label"])
@@ -244,7 +245,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     preset, jobs = preset_skills(args.dataset, args.splits, args.seed, None, parser.error)
     jobs = jobs[args.first_skill:args.first_skill + args.max_skills]
     if args.first_skill < 0 or not jobs:
-        parser.error(f"--first-skill {args.first_skill} --max-skills {args.max_skills}: no skill of {args.splits} left")
+        parser.error(f"--first-skill {args.first_skill} --max-skills {args.max_skills}: "
+                     f"no skill of {args.splits} left")
     predictors = load_predictors(args.predictor, parser.error)
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     domain = DomainSpec.resolve(preset["domain"]).to_dict()
