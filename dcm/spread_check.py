@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import equal_time_phases, schedule_from_phases, task_loss
+from dcm.control import equal_time_phases, schedule_from_phases, task_loss, task_loss_over_samples
 from dcm.data.task_check import CONF_DIR, preset_skills
 
 PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
@@ -159,23 +159,30 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
                      "friction_factor_std": float(np.std([t.bowl_friction_factor for t in perturbed]))})
         inputs.append((trials[0].x_attr, schedule))
     if rows and predictors:
+        from dcm.models.dcm import DCM
         from dcm.models.predict import predict_task_loss
 
         x_attr, stiffness = (np.stack(a) for a in zip(*inputs))
         x_demo, force_demo = (np.repeat(np.asarray(a)[None], len(rows), 0) for a in (demo.x_demo, demo.force_demo))
         for label, model in predictors.items():
-            losses = predict_task_loss(model, x_demo, force_demo, x_attr, stiffness, n_samples=model_samples or k)
-            for row, loss in zip(rows, losses):
-                row[label] = float(loss)
+            if isinstance(model, DCM):  # one draw of samples, read out both ways
+                mean, std = (np.asarray(a, dtype=np.float64) for a in model.predict_forces(
+                    x_demo, force_demo, x_attr, stiffness, n_samples=model_samples or k))
+                columns = {label: task_loss(mean, force_demo),
+                           f"{label}, over samples": task_loss_over_samples(mean, std, force_demo)}
+            else:
+                columns = {label: predict_task_loss(model, x_demo, force_demo, x_attr, stiffness,
+                                                    n_samples=model_samples or k)}
+            for column, losses in columns.items():
+                for row, loss in zip(rows, losses):
+                    row[column] = float(loss)
     return rows
 
 
 def load_predictors(specs: list[str], error: Callable[[str], Any]) -> dict[str, Any]:
-    """``LABEL=PATH`` (a checkpoint, a reference JSON or ``copy_demo``) -> loaded predictors. A DCM is added
-    twice: ``LABEL`` with L_task of its k samples' mean force, ``LABEL, over samples`` with their RMS L_task."""
-    import copy
-
-    from dcm.models.dcm import DCM
+    """``LABEL=PATH`` (a checkpoint, a reference JSON or ``copy_demo``) -> loaded predictors. A DCM is scored
+    twice from the same samples: ``LABEL`` with L_task of their mean force, ``LABEL, over samples`` with
+    their RMS L_task (``task_loss=over_samples``)."""
     from dcm.models.predict import load_model
 
     out: dict[str, Any] = {}
@@ -183,13 +190,7 @@ def load_predictors(specs: list[str], error: Callable[[str], Any]) -> dict[str, 
         label, sep, path = spec.partition("=")
         if not sep or not label or not path:
             error(f"--predictor {spec!r}: expected LABEL=PATH")
-        model = load_model(path)
-        out[label] = model
-        if isinstance(model, DCM):
-            spread = copy.deepcopy(model)
-            spread.set_task_loss("over_samples")
-            model.set_task_loss("of_mean")
-            out[f"{label}, over samples"] = spread
+        out[label] = load_model(path)
     return out
 
 

@@ -138,22 +138,24 @@ def test_the_drag_follows_the_drawn_friction(demo) -> None:
 
 def test_the_check_compares_friction_spreads_with_more_truth_rollouts(tmp_path, tiny_checkpoint,
                                                                       monkeypatch) -> None:
-    """Friction alone, three truth rollouts, and a DCM drawing its own number of samples, scored both ways."""
-    from dcm.models import predict
+    """Friction alone, three truth rollouts, and a DCM drawing its own number of samples once, scored both
+    ways from them."""
+    from dcm.models.dcm import DCM
 
     drawn = []
-    original = predict.predict_task_loss
+    original = DCM.predict_forces
 
-    def recording(*args, n_samples=None, **kwargs):
+    def recording(self, *args, n_samples=None, **kwargs):
         drawn.append(n_samples)
-        return original(*args, n_samples=n_samples, **kwargs)
+        return original(self, *args, n_samples=n_samples, **kwargs)
 
-    monkeypatch.setattr(predict, "predict_task_loss", recording)
+    monkeypatch.setattr(DCM, "predict_forces", recording)
     result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "3", "--k", "1",
                                 "--n-truth", "3", "--model-samples", "2", "--friction-std", "0.3",
                                 "--out", str(tmp_path), "--predictor", f"dcm={tiny_checkpoint}"])
     assert list(result["by_spread"]) == ["bowl_friction_std=0.3"]
     assert (result["n_truth"], result["model_samples"]) == (3, 2) and set(drawn) == {2}
+    assert len(drawn) == 1, "both read-outs come from one draw of samples"
     rows = next(iter(result["by_spread"]["bowl_friction_std=0.3"]["skills"].values()))
     assert all(r["friction_factor_std"] > 0 and r["offset_std_mm"] == 0 for r in rows)
     assert all(np.isfinite(r["dcm"]) and np.isfinite(r["dcm, over samples"]) for r in rows)
