@@ -249,6 +249,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         parser.error(f"--first-skill {args.first_skill} --max-skills {args.max_skills}: "
                      f"no skill of {args.splits} left")
     predictors = load_predictors(args.predictor, parser.error)
+    if predictors:
+        import torch
+
+        torch.manual_seed(args.seed)  # a DCM's samples: the same seed gives the same scores
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     domain = DomainSpec.resolve(preset["domain"]).to_dict()
     try:

@@ -160,3 +160,7 @@ def test_the_check_compares_friction_spreads_with_more_truth_rollouts(tmp_path, 
     assert all(r["friction_factor_std"] > 0 and r["offset_std_mm"] == 0 for r in rows)
     assert all(np.isfinite(r["dcm"]) and np.isfinite(r["dcm, over samples"]) for r in rows)
     assert any(r["dcm, over samples"] != r["dcm"] for r in rows), "the samples' spread counts one way only"
+    again = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "3", "--k", "1",
+                               "--n-truth", "3", "--model-samples", "2", "--friction-std", "0.3",
+                               "--out", str(tmp_path / "again"), "--predictor", f"dcm={tiny_checkpoint}"])
+    assert next(iter(again["by_spread"]["bowl_friction_std=0.3"]["skills"].values())) == rows, "same seed, same scores"
