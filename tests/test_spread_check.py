@@ -50,6 +50,20 @@ def test_the_offset_is_seeded_and_off_by_default(demo) -> None:
         DomainSpec(bowl_offset_std_m=0.5)
 
 
+def test_a_repeated_rollout_draws_again_and_repeat_zero_is_the_trial_of_old(demo) -> None:
+    """``repeat`` re-runs a schedule with another draw of the spread, as re-running it on a robot would;
+    without a spread the physics is the same, so every repeat gives the same forces."""
+    sim = Simulator("tool", FLAT, DomainSpec(bowl_offset_std_m=0.003), seed=4)
+    stiffness = sim.constant_stiffness(demo, 500.0)
+    draws = [sim.rollout(demo, stiffness, repeat=r).bowl_offset_m for r in range(4)]
+    assert draws[0] == sim.rollout(demo, stiffness).bowl_offset_m == _normal_force_shift(demo, 4, 500.0)[0]
+    assert len(set(draws)) == 4
+    assert sim.rollout(demo, stiffness, repeat=2).bowl_offset_m == draws[2]  # seeded
+    plain = Simulator("tool", FLAT)
+    np.testing.assert_array_equal(plain.rollout(demo, stiffness, repeat=3).force_obs,
+                                  plain.rollout(demo, stiffness).force_obs)
+
+
 def test_oracle_losses_and_within_skill_r_on_known_cases() -> None:
     force_demo = np.zeros((4, 6))
     # Samples at +-2 N around the demo: each one's L_task is 2/sqrt(3) N (RMSE over three axes); the truth

@@ -18,7 +18,7 @@ from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
 from dcm.tuning.compare import compare
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
-from dcm.tuning.run import TuneConfigError, recording_mismatch, tune, use_sampler
+from dcm.tuning.run import TuneConfigError, check_config, record_skill, recording_mismatch, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -102,6 +102,32 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
     (other / "results.json").write_text(json.dumps(results))
     with pytest.raises(ValueError, match="tuned another skill .*demo.press_m"):
         compare([out_dir, other], robot_trials=[])
+
+
+def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny_checkpoint: Path, tmp_path: Path):
+    """With a per-rollout spread (domain=bowl_offset) a solution is judged by its mean L_task over
+    ``validation_rollouts`` draws, none of them the one a search trial got; the robot-based front's picks too."""
+    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    cfg = _config(tiny_checkpoint, demo, out_dir, 8, "validation_rollouts=3", "domain=bowl_offset")
+    results = tune(cfg, out_dir)
+    free, based = results["robot_free"], results["robot_based"]
+    assert free["validation_rollouts"] == 3
+    assert 1 <= len(based["solutions"]) <= 3 and based["hypervolume_validated"] >= 0.0
+
+    simulator, recorded, skill = record_skill(cfg, check_config(cfg))
+    for solution in (free["solutions"][0], based["solutions"][0]):
+        stiffness = skill.schedules(np.asarray([solution["phase_stiffness_Npm"]]))[0]
+        draws = [simulator.rollout(recorded, stiffness, repeat=r).L_task for r in (1, 2, 3)]
+        assert solution["validated"]["L_task_N"] == pytest.approx(np.mean(draws))
+    observed = based["solutions"][0]["observed"]["L_task_N"]  # the search trial's own draw (repeat 0)
+    assert observed == pytest.approx(simulator.rollout(recorded, stiffness).L_task)
+    assert observed != pytest.approx(based["solutions"][0]["validated"]["L_task_N"])
+
+    assert compare([out_dir], robot_trials=[])["robot_free"][str(out_dir)] >= 0.0
+    with pytest.raises(ValueError, match="over 3 rollouts each, but its robot-based trials are one draw each"):
+        compare([out_dir], robot_trials=[5])
+    with pytest.raises(TuneConfigError, match="validation_rollouts = 0"):
+        check_config(_config(tiny_checkpoint, demo, out_dir, 8, "validation_rollouts=0"))
 
 
 def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoint: Path, tmp_path: Path):

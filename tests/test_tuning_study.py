@@ -13,6 +13,7 @@ from hydra import compose, initialize_config_dir
 
 import dcm.tuning.run as tuning_run
 from dcm.models.references import main as references_main
+from dcm.tuning.pareto import hypervolume
 from dcm.tuning.study import run_study
 from dcm.tuning.study_config import StudyConfigError
 from dcm.tuning.study_controls import prior_levels
@@ -71,12 +72,17 @@ def _study_config(ckpt: Path, reference: Path, demo: Path, out_dir: Path, *extra
         ])
 
 
-def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_checkpoint: Path, tiny_dataset_path: Path,
-                                                                       tmp_path: Path, monkeypatch):
+def _short_demo(tmp_path: Path) -> Path:
     spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
     spec["duration_s"], spec["approach_s"] = 2.0, 0.4
     demo = tmp_path / "short_wave.yaml"
     demo.write_text(yaml.safe_dump(spec))
+    return demo
+
+
+def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_checkpoint: Path, tiny_dataset_path: Path,
+                                                                       tmp_path: Path, monkeypatch):
+    demo = _short_demo(tmp_path)
     reference = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
     out = tmp_path / "study"
     cfg = _study_config(tiny_checkpoint, reference, demo, out)
@@ -126,3 +132,26 @@ def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_chec
     changed = _study_config(tiny_checkpoint, reference, demo, out, "robot_free.n_trials=10")
     with pytest.raises(StudyConfigError, match=r"other settings: robot_free.n_trials: 8 -> 10"):
         run_study(changed, out)
+
+
+def test_with_validation_rollouts_every_front_is_judged_by_its_expected_loss(tiny_checkpoint: Path,
+                                                                            tiny_dataset_path: Path, tmp_path: Path):
+    """In a domain with a per-rollout spread, the robot-based search truncated to N is judged as the robot-free
+    tuners are: its front's picks re-run ``validation_rollouts`` times, not its own lucky draws."""
+    reference = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
+    out = tmp_path / "study"
+    cfg = _study_config(tiny_checkpoint, reference, _short_demo(tmp_path), out, "seeds=1", "domain=bowl_offset",
+                        "validation_rollouts=2")
+    report = run_study(cfg, out)
+    point = np.array([report["reference_point"]["L_task_N"], report["reference_point"]["L_comp_kNpm"]])
+    for n in (2, 6):
+        picks = json.loads((out / f"runs/robot_based_{n}/seed_000/results.json").read_text())
+        assert picks["validation_rollouts"] == 2 and 1 <= len(picks["solutions"]) <= 2
+        assert all(s["validated"]["L_task_N"] != s["observed"]["L_task_N"] for s in picks["solutions"])
+        judged = np.array([[s["validated"]["L_task_N"], s["validated"]["L_comp_kNpm"]] for s in picks["solutions"]])
+        assert report["hypervolume"][f"robot_based_{n}"][0] == pytest.approx(hypervolume(judged, point))
+    # The prior's middle level is the demo's own 800 N/m: at seed 0 its two draws are the reference point's.
+    middle = json.loads((out / "runs/prior/seed_000/results.json").read_text())["solutions"][1]
+    assert middle["phase_stiffness_Npm"][0] == [800.0, 800.0, 800.0]
+    assert middle["validated"]["L_task_N"] == pytest.approx(report["reference_point"]["demo_stiffness_L_task_N"])
+    assert "mean L_task over 2 rollouts" in (out / "study.md").read_text()

@@ -232,8 +232,12 @@ class Simulator:
         return Demo(spec=spec, dt=self.dt, x_demo=run.x_obs, force_demo=run.force_obs, start_pose=start,
                     contact=run.contact)
 
-    def rollout(self, demo: Demo, stiffness: np.ndarray) -> Trial:
+    def rollout(self, demo: Demo, stiffness: np.ndarray, repeat: int = 0) -> Trial:
         """Run the impedance controller with schedule ``stiffness`` (H, 6) on the attractor of ``demo``.
+
+        A rollout's random draws (sensor noise, per-rollout bowl spread) are seeded by the simulator's seed and
+        its inputs, so the same schedule gives the same trial; ``repeat`` > 0 draws another, independent one
+        (the same physics with other noise), as re-running a schedule on a real robot would.
 
         Raises ``StiffnessOutOfRange`` for values outside ``self.limits`` and ``SimulatorError`` for
         mismatched shapes or non-finite demo data; divergence gives a failed ``Trial`` instead.
@@ -259,7 +263,7 @@ class Simulator:
         start = demo.start_pose if demo.start_pose is not None else demo.spec.start_pose(self.control_hz)
         emb = self.embodiment_for(demo.spec.bowl)
         digest = (x_demo.tobytes(), force_demo.tobytes(), stiffness.tobytes())
-        rng = self._rng("rollout", *digest)
+        rng = self._rng("rollout", *digest, *([repeat] if repeat else []))
         offset, friction_factor = self._bowl_draw(rng)
         with _bowl_replaced(emb, offset, friction_factor):
             run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng)

@@ -72,6 +72,12 @@ def compare(runs: Sequence[Path], robot_trials: Sequence[int], reference: Sequen
         "robot_free": {name: hypervolume(points, reference) for name, points in validated.items()},
         "robot_based": {},
     }
+    rollouts = json.loads((runs[0] / "results.json").read_text())["robot_free"].get("validation_rollouts", 1)
+    if robot_trials and rollouts > 1:
+        raise ValueError(f"{runs[0]} judged its solutions over {rollouts} rollouts each, but its robot-based trials "
+                         "are one draw each, so their prefixes would be judged on other terms; pass --robot-trials "
+                         "without values, or run python -m dcm.tuning.study validation_rollouts=R, which re-runs "
+                         "each prefix's front")
     for n in robot_trials:
         if n > len(robot):
             raise ValueError(f"{robot_log} holds {len(robot)} robot-based trials; cannot report the first {n}")

@@ -2,7 +2,7 @@
 
 ``ModelObjective`` is robot-free: a predictor (force model, or the stiffness-only reference) predicts L_task
 through :func:`dcm.models.predict.predict_task_loss`.
-``SimulatorObjective`` is robot-based: every proposal is a simulator rollout. Both return (B, 2) arrays of
+``SimulatorObjective`` is robot-based: every proposal is a simulator rollout (or the mean of several). Both return (B, 2) arrays of
 (L_task [N], L_comp [kN/m]), with NaN rows for failed trials, so one optimisation loop serves both.
 Both are called as ``objective(proposals, first)``, ``first`` being the index of the batch's first trial.
 """
@@ -120,18 +120,28 @@ class _inference_mode:
 
 
 class SimulatorObjective:
-    """Every proposal is a simulated rollout; failed rollouts score NaN and are kept with their reason."""
+    """Every proposal is a simulator rollout; failed rollouts score NaN and are kept with their reason.
 
-    def __init__(self, simulator: Any, demo: Any, skill: Skill):
+    ``rollouts`` > 1 measures each proposal's expected L_task instead: the mean over that many rollouts, each
+    with its own draw of the domain's per-rollout spread (``Simulator.rollout(repeat=1..rollouts)``, none of
+    them the draw a search trial of the same schedule got); NaN if any of them fails. That is how a solution
+    is judged where one rollout is one sample of a distribution (``domain=bowl_offset``).
+    ``trials`` holds every rollout, proposal by proposal.
+    """
+
+    def __init__(self, simulator: Any, demo: Any, skill: Skill, rollouts: int = 1):
         self.simulator = simulator
         self.demo = demo
         self.skill = skill
+        self.rollouts = int(rollouts)
         self.trials: list[Any] = []
 
     def __call__(self, proposals: np.ndarray, first_trial: int = 0) -> np.ndarray:
         scores = []
+        repeats = [0] if self.rollouts == 1 else range(1, self.rollouts + 1)
         for stiffness in self.skill.schedules(proposals):
-            trial = self.simulator.rollout(self.demo, stiffness)
-            self.trials.append(trial)
-            scores.append([np.nan, np.nan] if trial.failed else [trial.L_task, trial.L_comp])
+            trials = [self.simulator.rollout(self.demo, stiffness, repeat=r) for r in repeats]
+            self.trials.extend(trials)
+            failed = any(t.failed for t in trials)
+            scores.append([np.nan, np.nan] if failed else [np.mean([t.L_task for t in trials]), trials[0].L_comp])
         return np.asarray(scores, dtype=np.float64)

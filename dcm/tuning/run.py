@@ -6,8 +6,11 @@ Steps (each resumable from the run directory):
 1. record the new skill's demo in the simulator;
 2. robot-free search: ``robot_free.n_trials`` virtual trials, L_task predicted by the checkpoint (or by a
    stiffness reference JSON, ``python -m dcm.models.references fit``; ``copy_demo`` is refused: it ranks nothing);
-3. validate up to ``robot_free.n_validate`` solutions spread along the predicted Pareto front in the simulator;
-4. robot-based search: ``robot_based.n_trials`` simulated trials with the same strategy;
+3. validate up to ``robot_free.n_validate`` solutions spread along the predicted Pareto front in the simulator,
+   each over ``validation_rollouts`` rollouts (their mean L_task: the expected loss under a per-rollout spread);
+4. robot-based search: ``robot_based.n_trials`` simulated trials with the same strategy; with
+   ``validation_rollouts`` > 1 its front is judged the same way, since its own one-rollout values are the lucky
+   draws the search kept;
 5. hypervolume I_H of both, against one reference point, written to ``results.json`` with figures.
 
 A diffusion model's samples are seeded per batch from ``(seed, first trial of the batch)``, so the same
@@ -53,6 +56,14 @@ def pick_spread(objectives: np.ndarray, count: int) -> np.ndarray:
     if len(front) <= count:
         return front
     return front[np.unique(np.round(np.linspace(0, len(front) - 1, count)).astype(int))]
+
+
+def validate_front(objective: SimulatorObjective, params: np.ndarray, objectives: np.ndarray,
+                   count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Re-run up to ``count`` picks spread along the front of observed ``objectives`` with ``objective`` (the
+    validation's rollouts): the indices picked and their validated (L_task, L_comp)."""
+    picks = pick_spread(objectives, count)
+    return picks, objective(params[picks]) if len(picks) else np.zeros((0, 2))
 
 
 # ----------------------------------------------------------------------------------------------- checks
@@ -146,6 +157,7 @@ def check_config(cfg: Any) -> CheckedConfig:
     _integer(free.batch_size, "robot_free.batch_size", 1)
     _integer(free.n_samples, "robot_free.n_samples", 1)
     _integer(free.n_validate, "robot_free.n_validate", 1)
+    _integer(cfg.validation_rollouts, "validation_rollouts", 1)
     _integer(robot.n_trials, "robot_based.n_trials", 0, " (0 skips the robot-based search)")
     sampler = free.get("sampler")
     if sampler is not None and sampler not in SAMPLERS:
@@ -362,21 +374,27 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
                            prints["robot_free"], "robot-free (model)", free_times, notes)
     free_params, free_predicted = free_log.arrays()
 
-    chosen = pick_spread(free_predicted, cfg.robot_free.n_validate)
-    validation = SimulatorObjective(simulator, demo, skill)
+    n_validate, rollouts = cfg.robot_free.n_validate, cfg.validation_rollouts
+    chosen = pick_spread(free_predicted, n_validate)
+    validation = SimulatorObjective(simulator, demo, skill, rollouts)
     start = time.perf_counter()
     validated = validation(free_params[chosen])
     validation_seconds = time.perf_counter() - start
 
     robot_based = np.zeros((0, 2))
     robot_times = LoopTimes()
+    robot_expected = None
     if cfg.robot_based.n_trials > 0:
         robot_log = search_loop(SimulatorObjective(simulator, demo, skill), cfg.robot_based.n_trials, 1, robot_path,
                                 prints["robot_based"], "robot-based (simulator)", robot_times)
-        robot_based = robot_log.arrays()[1]
+        robot_params, robot_based = robot_log.arrays()
+        if rollouts > 1:
+            robot_expected = validate_front(SimulatorObjective(simulator, demo, skill, rollouts), robot_params,
+                                            robot_based, n_validate)
 
     finite = lambda a: a[np.isfinite(a).all(axis=1)]  # noqa: E731
-    reference = reference_cfg if reference_cfg is not None else reference_point(finite(validated), finite(robot_based))
+    judged = [finite(validated), finite(robot_based if robot_expected is None else robot_expected[1])]
+    reference = reference_cfg if reference_cfg is not None else reference_point(*judged)
     results = {
         "checkpoint": str(cfg.ckpt),
         "model": type(model).__name__,
@@ -395,6 +413,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
             "seconds_inputs": model_objective.seconds_inputs,
             "seconds_optimiser": free_times.optimiser,
             "n_validated": len(chosen),
+            "validation_rollouts": rollouts,
             "validation_seconds": validation_seconds,
             "hypervolume": hypervolume(finite(validated), reference),
             "solutions": [
@@ -413,11 +432,20 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
             "hypervolume": hypervolume(finite(robot_based), reference) if len(robot_based) else None,
         },
     }
+    if robot_expected is not None:  # its front's picks, judged as the robot-free solutions are
+        picks, expected = robot_expected
+        results["robot_based"]["hypervolume_validated"] = hypervolume(finite(expected), reference)
+        results["robot_based"]["solutions"] = [
+            {"phase_stiffness_Npm": robot_params[i].tolist(),
+             "observed": {"L_task_N": robot_based[i, 0], "L_comp_kNpm": robot_based[i, 1]},
+             "validated": {"L_task_N": expected[j, 0], "L_comp_kNpm": expected[j, 1],
+                           "failed": bool(np.isnan(expected[j]).any())}}
+            for j, i in enumerate(picks)]
     (out_dir / "results.json").write_text(json.dumps(results, indent=2, default=float))
     pareto = (free_predicted[np.isfinite(free_predicted).all(axis=1)], finite(validated), finite(robot_based),
               reference, type(model).__name__)
     plot_pareto(out_dir / "pareto.png", *pareto)
-    _plot_best(out_dir, model_objective, free_params[chosen], validated, validation.trials, demo, pareto)
+    _plot_best(out_dir, model_objective, free_params[chosen], validated, validation.trials[::rollouts], demo, pareto)
     return results
 
 

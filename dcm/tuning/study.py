@@ -10,7 +10,9 @@ control's, paired by seed (Wilcoxon signed-rank). Per seed s it runs, each in it
 * ``dcm`` (and ``baseline``, ``reference`` when given): robot-free tuning with :func:`dcm.tuning.run.tune`,
   ``robot_free.n_validate`` simulator validations; the DCM's run also holds the robot-based search of
   ``max(robot_based.n_trials)`` trials, reported as ``robot_based_<N>`` for each N by truncation;
-* ``prior``: the model-free control of :mod:`dcm.tuning.study_controls`.
+* ``prior``: the model-free control of :mod:`dcm.tuning.study_controls`;
+* ``robot_based_<N>``, only with ``validation_rollouts`` > 1: the front of the first N robot-based trials,
+  re-run like a robot-free tuner's solutions (:func:`dcm.tuning.study_controls.run_robot_based_picks`).
 
 A finished run (``results.json`` present) is never redone; an unfinished one resumes from its trial logs; the
 folder remembers its settings and, once a run has finished, refuses other settings. Then it writes ``study.json`` (reference point,
@@ -31,7 +33,7 @@ from dcm.tuning.pareto import hypervolume
 from dcm.tuning.run import ROBOT_LOG
 from dcm.tuning.study_config import (Tuner, check_resume, check_study, plain, robot_trial_counts, seeds, tune_config,
                                      tuners)
-from dcm.tuning.study_controls import demo_reference_point, run_prior, setup_skill, write_json
+from dcm.tuning.study_controls import demo_reference_point, run_prior, run_robot_based_picks, setup_skill, write_json
 from dcm.tuning.study_report import box_plot, cost_table, label, study_table
 from dcm.tuning.study_stats import aggregate, landscape
 
@@ -67,7 +69,8 @@ def study_reference(cfg: Any, dcm: Tuner, out_dir: Path) -> dict[str, Any]:
     else:
         ref = cfg.reference_point
         setup = setup_skill(tune_config(cfg, dcm, int(ref.seed), None, out_dir))
-        reference = {**demo_reference_point(setup, float(ref.task_factor), float(ref.comp_factor)),
+        reference = {**demo_reference_point(setup, float(ref.task_factor), float(ref.comp_factor),
+                                            int(cfg.validation_rollouts)),
                      "seed": int(ref.seed)}
     write_json(path, reference)
     return reference
@@ -83,8 +86,24 @@ def _run_tuner(cfg: Any, tuner: Tuner, seed: int, reference: list[float], folder
 
 def _run_prior(cfg: Any, dcm: Tuner, seed: int, folder: Path) -> None:
     start = time.perf_counter()
-    run_prior(setup_skill(tune_config(cfg, dcm, seed, None, folder)), int(cfg.prior.n_levels), folder)
+    run_prior(setup_skill(tune_config(cfg, dcm, seed, None, folder)), int(cfg.prior.n_levels), folder,
+              int(cfg.validation_rollouts))
     write_json(folder / TIMING, {"wall_seconds": time.perf_counter() - start})
+
+
+def _run_robot_based_picks(cfg: Any, dcm: Tuner, seed: int, counts: list[int], out_dir: Path) -> None:
+    """Judge the seed's robot-based search, truncated to each N, by the expected loss of its front's picks."""
+    from dcm.tuning.optimize import TrialLog
+
+    folders = {n: run_dir(out_dir, f"robot_based_{n}", seed) for n in counts}
+    if all((folder / RESULTS).is_file() for folder in folders.values()):
+        return
+    params, objectives = TrialLog.load(run_dir(out_dir, dcm.name, seed) / ROBOT_LOG).arrays()
+    setup = setup_skill(tune_config(cfg, dcm, seed, None, folders[counts[0]]))
+    for n, folder in folders.items():
+        if not (folder / RESULTS).is_file():
+            run_robot_based_picks(setup, params[:n], objectives[:n], int(cfg.robot_free.n_validate),
+                                  int(cfg.validation_rollouts), folder)
 
 
 def _check_runs(cfg: Any, tuner_list: list[Tuner], seed: int, reference: list[float] | None, out_dir: Path) -> None:
@@ -134,6 +153,8 @@ def _run_study(cfg: Any, out_dir: Path) -> dict[str, Any]:
                 _run_prior(cfg, dcm, seed, folder)
             else:
                 _run_tuner(cfg, next(t for t in tuner_list if t.name == name), seed, reference.tolist(), folder)
+        if int(cfg.validation_rollouts) > 1:
+            _run_robot_based_picks(cfg, dcm, seed, counts, out_dir)
 
     report = collect(cfg, out_dir, tuner_list, seed_list, counts, reference)
     report["reference_point"] = reference_info
@@ -171,7 +192,11 @@ def collect(cfg: Any, out_dir: Path, tuner_list: list[Tuner], seed_list: list[in
         robot_objectives.append(trial_objectives)
         robot_seconds = json.loads((robot_folder / RESULTS).read_text())["robot_based"]["seconds"]
         for n in counts:
-            values[f"robot_based_{n}"].append(_hv(trial_objectives[:n], reference))
+            if int(cfg.validation_rollouts) > 1:
+                picks = json.loads((run_dir(out_dir, f"robot_based_{n}", seed) / RESULTS).read_text())
+                values[f"robot_based_{n}"].append(_hv(_validated(picks), reference))
+            else:
+                values[f"robot_based_{n}"].append(_hv(trial_objectives[:n], reference))
             times[f"robot_based_{n}"].append({"opt_seconds": robot_seconds * n / len(trial_objectives),
                                               "validation_seconds": 0.0})
         seed_seconds.append(wall)
@@ -209,7 +234,8 @@ def collect(cfg: Any, out_dir: Path, tuner_list: list[Tuner], seed_list: list[in
 def write_outputs(cfg: Any, out_dir: Path, report: dict[str, Any], n_seeds: int) -> None:
     stats, reference = report["statistics"], report["reference_point"]
     write_json(out_dir / "study.json", report)
-    table = study_table(stats, report["robot_trials"], reference, n_seeds, report["landscape"])
+    table = study_table(stats, report["robot_trials"], reference, n_seeds, report["landscape"],
+                        int(cfg.validation_rollouts))
     (out_dir / "study.md").write_text(table)
     (out_dir / "cost.md").write_text(cost_table(report["costs"], float(cfg.robot_minutes_per_trial)))
     skill = Path(cfg.demo_file).stem if cfg.demo_file else cfg.demo.get("name", "skill")

@@ -86,6 +86,7 @@ def check_study(cfg: Any) -> None:
     robot_trial_counts(cfg)
     tuners(cfg)
     _integer(cfg.prior.n_levels, "prior.n_levels", 1)
+    _integer(cfg.validation_rollouts, "validation_rollouts", 1)
     ref = cfg.reference_point
     if ref.value is None:
         for key in ("task_factor", "comp_factor"):
@@ -131,6 +132,7 @@ def tune_config(cfg: Any, tuner: Tuner, seed: int, reference: list[float] | None
     base.update(demo=plain(cfg.demo), demo_file=cfg.demo_file, stiffness=plain(cfg.stiffness),
                 search=plain(cfg.search), embodiment=cfg.embodiment, domain=plain(cfg.domain),
                 control_hz=cfg.control_hz, device=cfg.device, seed=int(seed), ckpt=tuner.ckpt,
+                validation_rollouts=int(cfg.validation_rollouts),
                 reference_point=None if reference is None else [float(v) for v in reference], out_dir=str(out_dir))
     base["robot_free"] = {**base["robot_free"], **plain(cfg.robot_free)}
     base["robot_based"] = {**base["robot_based"], "n_trials": tuner.robot_based_trials}

@@ -14,6 +14,11 @@ schedule is linear in its level, so the 5 points are spread evenly along L_comp 
 an engineer would try without any model; and 5 random schedules would duplicate robot-based N = 5, whose
 first ``n_startup_trials`` (10) MOTPE trials are random already. The prior is seed-independent in a
 noise-free domain, so its I_H is the same for every seed there.
+
+**Judging by the expected loss.** With ``validation_rollouts`` R > 1 (a domain where one rollout is one draw
+of a spread), every solution is judged by its mean L_task over R rollouts: the reference point's demo
+rollout, the prior's levels and, through :func:`run_robot_based_picks`, the robot-based search truncated to
+N trials, whose front of one-rollout values is re-run like a robot-free tuner's Pareto set.
 """
 
 from __future__ import annotations
@@ -41,9 +46,13 @@ class SkillSetup:
     demo: Any
     skill: Skill
 
-    def evaluate(self, phase_stiffness: np.ndarray) -> np.ndarray:
-        """(B, P, 3) N/m -> (B, 2) simulated (L_task, L_comp); NaN rows for failed rollouts."""
-        return SimulatorObjective(self.simulator, self.demo, self.skill)(phase_stiffness)
+    def evaluate(self, phase_stiffness: np.ndarray, rollouts: int = 1) -> np.ndarray:
+        """(B, P, 3) N/m -> (B, 2) simulated (L_task, L_comp), L_task the mean over ``rollouts``; NaN rows for
+        failed rollouts."""
+        return self.objective(rollouts)(phase_stiffness)
+
+    def objective(self, rollouts: int = 1) -> SimulatorObjective:
+        return SimulatorObjective(self.simulator, self.demo, self.skill, rollouts)
 
 
 def setup_skill(tune_cfg: Any) -> SkillSetup:
@@ -61,10 +70,12 @@ def max_compliance_loss(setup: SkillSetup) -> float:
     return float(compliance_loss(setup.skill.schedules(stiffest))[0])
 
 
-def demo_reference_point(setup: SkillSetup, task_factor: float, comp_factor: float) -> dict[str, Any]:
-    """The study's reference point from the demo's own stiffness rollout; raises if that rollout fails."""
+def demo_reference_point(setup: SkillSetup, task_factor: float, comp_factor: float,
+                         rollouts: int = 1) -> dict[str, Any]:
+    """The study's reference point from the demo's own stiffness rollout (the mean of ``rollouts``); raises if
+    that rollout fails."""
     demo_stiffness = np.tile(np.asarray(setup.spec.stiffness_Npm, dtype=np.float64), (1, setup.space.n_phases, 1))
-    task, comp = setup.evaluate(demo_stiffness)[0]
+    task, comp = setup.evaluate(demo_stiffness, rollouts)[0]
     if not np.isfinite(task):
         raise RuntimeError(f"the rollout at the demo's own stiffness {list(setup.spec.stiffness_Npm)} N/m failed, "
                            "so it cannot set the reference point; give reference_point.value=[L_task_N,L_comp_kNpm]")
@@ -80,12 +91,12 @@ def prior_levels(min_Npm: float, max_Npm: float, n_levels: int) -> np.ndarray:
     return min_Npm + (np.arange(n_levels) + 0.5) * (max_Npm - min_Npm) / n_levels
 
 
-def run_prior(setup: SkillSetup, n_levels: int, out_dir: Path) -> dict[str, Any]:
+def run_prior(setup: SkillSetup, n_levels: int, out_dir: Path, rollouts: int = 1) -> dict[str, Any]:
     """Validate the prior's schedules in the simulator; writes ``results.json`` to ``out_dir`` (a finished run)."""
     levels = prior_levels(setup.space.min_Npm, setup.space.max_Npm, n_levels)
     schedules = np.stack([np.full((setup.space.n_phases, 3), level) for level in levels])
     start = time.perf_counter()
-    validated = setup.evaluate(schedules)
+    validated = setup.evaluate(schedules, rollouts)
     seconds = time.perf_counter() - start
     results = {
         "tuner": "prior",
@@ -95,6 +106,32 @@ def run_prior(setup: SkillSetup, n_levels: int, out_dir: Path) -> dict[str, Any]
         "solutions": [{"phase_stiffness_Npm": k.tolist(),
                        "validated": {"L_task_N": v[0], "L_comp_kNpm": v[1], "failed": bool(np.isnan(v).any())}}
                       for k, v in zip(schedules, validated)],
+    }
+    write_json(out_dir / "results.json", results)
+    return results
+
+
+def run_robot_based_picks(setup: SkillSetup, params: np.ndarray, objectives: np.ndarray, n_validate: int,
+                          rollouts: int, out_dir: Path) -> dict[str, Any]:
+    """Re-run up to ``n_validate`` picks spread along the front of a robot-based search's trials (``params`` and
+    their one-rollout ``objectives``, truncated to N) over ``rollouts`` rollouts each; writes ``results.json``.
+
+    Why: in a domain with a per-rollout spread the search's own values of its front are the lucky draws it
+    kept, so its I_H from them would be judged on other terms than the robot-free tuners' validated solutions.
+    """
+    from dcm.tuning.run import validate_front
+
+    start = time.perf_counter()
+    picks, validated = validate_front(setup.objective(rollouts), params, objectives, n_validate)
+    results = {
+        "tuner": f"robot_based_{len(params)}",
+        "seed": int(setup.simulator.seed),
+        "validation_rollouts": int(rollouts),
+        "validation_seconds": time.perf_counter() - start,
+        "solutions": [{"phase_stiffness_Npm": params[i].tolist(),
+                       "observed": {"L_task_N": objectives[i, 0], "L_comp_kNpm": objectives[i, 1]},
+                       "validated": {"L_task_N": v[0], "L_comp_kNpm": v[1], "failed": bool(np.isnan(v).any())}}
+                      for i, v in zip(picks, validated)],
     }
     write_json(out_dir / "results.json", results)
     return results

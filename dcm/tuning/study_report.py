@@ -58,14 +58,17 @@ def _num(value: float | None, digits: int = 4) -> str:
 
 
 def study_table(stats: Mapping[str, Any], robot_trials: Mapping[str, int], reference: Mapping[str, Any],
-                n_seeds: int, landscape: Mapping[str, Any] | None = None) -> str:
+                n_seeds: int, landscape: Mapping[str, Any] | None = None, rollouts: int = 1) -> str:
     """Markdown: per tuner the robot trials, median and IQR of I_H, and the DCM's paired test against it; then
     how much stiffness moves the skill's L_task (``study_stats.landscape``), which bounds what ranking can win."""
     subject = stats["subject"]
     lines = [
         f"I_H over {n_seeds} seeds against one fixed reference point (L_task {reference['L_task_N']:.4g} N, "
         f"L_comp {reference['L_comp_kNpm']:.4g} kN/m). Tests: two-sided Wilcoxon signed-rank, "
-        f"{label(subject)} vs each control, paired by seed, alpha = {stats['alpha']}.",
+        f"{label(subject)} vs each control, paired by seed, alpha = {stats['alpha']}."
+        + (f" Every solution, the robot-based fronts' picks included, is judged by its mean L_task over {rollouts} "
+           "rollouts (the expected loss); the robot trials column counts the tuner's own trials." if rollouts > 1
+           else ""),
         "",
         f"| tuner | robot trials | median I_H | IQR [Q1, Q3] | {label(subject)} − tuner, median | "
         f"{label(subject)} better / worse / tied | p |",
