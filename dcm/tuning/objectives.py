@@ -2,8 +2,9 @@
 
 ``ModelObjective`` is robot-free: a predictor (force model, or the stiffness-only reference) predicts L_task
 through :func:`dcm.models.predict.predict_task_loss`.
-``SimulatorObjective`` is robot-based: every proposal is a simulator rollout (or the mean of several). Both return (B, 2) arrays of
-(L_task [N], L_comp [kN/m]), with NaN rows for failed trials, so one optimisation loop serves both.
+``SimulatorObjective`` is robot-based: every proposal is a simulator rollout (or the mean of several). Both
+return (B, 2) arrays of (L_task [N], L_comp [kN/m]), with NaN rows for failed trials, so one optimisation loop
+serves both.
 Both are called as ``objective(proposals, first)``, ``first`` being the index of the batch's first trial.
 """
 
