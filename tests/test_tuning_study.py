@@ -150,8 +150,36 @@ def test_with_validation_rollouts_every_front_is_judged_by_its_expected_loss(tin
         assert all(s["validated"]["L_task_N"] != s["observed"]["L_task_N"] for s in picks["solutions"])
         judged = np.array([[s["validated"]["L_task_N"], s["validated"]["L_comp_kNpm"]] for s in picks["solutions"]])
         assert report["hypervolume"][f"robot_based_{n}"][0] == pytest.approx(hypervolume(judged, point))
+    # N = all trials: the DCM's tune run validated those picks already, and its numbers are the study's.
+    tuned = json.loads((out / "runs/dcm/seed_000/results.json").read_text())["robot_based"]
+    assert picks["solutions"] == tuned["solutions"] and picks["validation_seconds"] == tuned["validation_seconds"]
     # The prior's middle level is the demo's own 800 N/m: at seed 0 its two draws are the reference point's.
     middle = json.loads((out / "runs/prior/seed_000/results.json").read_text())["solutions"][1]
     assert middle["phase_stiffness_Npm"][0] == [800.0, 800.0, 800.0]
     assert middle["validated"]["L_task_N"] == pytest.approx(report["reference_point"]["demo_stiffness_L_task_N"])
     assert "mean L_task over 2 rollouts" in (out / "study.md").read_text()
+
+
+def test_robot_based_picks_take_the_tune_runs_validation_of_the_same_picks(tmp_path: Path):
+    """A front the tune run validated over as many rollouts is not rolled out again (no simulator is touched);
+    other picks or another rollout count are."""
+    from types import SimpleNamespace
+
+    from dcm.tuning.study_controls import run_robot_based_picks
+
+    params = np.array([[[100.0] * 3], [[900.0] * 3], [[500.0] * 3]])
+    observed = np.array([[0.5, 0.1], [0.2, 0.9], [0.9, 0.95]])  # the first two are the front
+    tuned = {"validation_rollouts": 4, "validation_seconds": 1.5,
+             "solutions": [{"phase_stiffness_Npm": params[i].tolist(), "observed": {}, "validated": {"L_task_N": v}}
+                           for i, v in ((0, 0.7), (1, 0.3))]}
+
+    def no_rollouts(rollouts: int):
+        raise AssertionError(f"rolled out {rollouts} times")
+
+    setup = SimpleNamespace(simulator=SimpleNamespace(seed=3), objective=no_rollouts)
+    results = run_robot_based_picks(setup, params, observed, 2, 4, tmp_path, tuned)
+    assert results["solutions"] == tuned["solutions"] and results["validation_seconds"] == 1.5
+    assert json.loads((tmp_path / "results.json").read_text())["tuner"] == "robot_based_3"
+    for rollouts, n_validate in ((2, 2), (4, 1)):  # another rollout count; other picks
+        with pytest.raises(AssertionError, match="rolled out"):
+            run_robot_based_picks(setup, params, observed, n_validate, rollouts, tmp_path, tuned)

@@ -66,6 +66,15 @@ def validate_front(objective: SimulatorObjective, params: np.ndarray, objectives
     return picks, objective(params[picks]) if len(picks) else np.zeros((0, 2))
 
 
+def solution_record(phase_stiffness: np.ndarray, validated: np.ndarray, **measured: np.ndarray) -> dict[str, Any]:
+    """One solution as a ``results.json`` lists it: its per-phase stiffness, its other (L_task, L_comp) by name
+    (``predicted`` by a model, ``observed`` in a search's trial) and its validated ones."""
+    pair = lambda v: {"L_task_N": v[0], "L_comp_kNpm": v[1]}  # noqa: E731
+    return {"phase_stiffness_Npm": np.asarray(phase_stiffness).tolist(),
+            **{name: pair(value) for name, value in measured.items()},
+            "validated": {**pair(validated), "failed": bool(np.isnan(validated).any())}}
+
+
 # ----------------------------------------------------------------------------------------------- checks
 def _plain(value: Any) -> Any:
     from omegaconf import OmegaConf
@@ -383,14 +392,16 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
 
     robot_based = np.zeros((0, 2))
     robot_times = LoopTimes()
-    robot_expected = None
+    robot_expected, robot_validation_seconds = None, 0.0
     if cfg.robot_based.n_trials > 0:
         robot_log = search_loop(SimulatorObjective(simulator, demo, skill), cfg.robot_based.n_trials, 1, robot_path,
                                 prints["robot_based"], "robot-based (simulator)", robot_times)
         robot_params, robot_based = robot_log.arrays()
         if rollouts > 1:
+            start = time.perf_counter()
             robot_expected = validate_front(SimulatorObjective(simulator, demo, skill, rollouts), robot_params,
                                             robot_based, n_validate)
+            robot_validation_seconds = time.perf_counter() - start
 
     finite = lambda a: a[np.isfinite(a).all(axis=1)]  # noqa: E731
     judged = [finite(validated), finite(robot_based if robot_expected is None else robot_expected[1])]
@@ -416,15 +427,8 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
             "validation_rollouts": rollouts,
             "validation_seconds": validation_seconds,
             "hypervolume": hypervolume(finite(validated), reference),
-            "solutions": [
-                {
-                    "phase_stiffness_Npm": free_params[i].tolist(),
-                    "predicted": {"L_task_N": free_predicted[i, 0], "L_comp_kNpm": free_predicted[i, 1]},
-                    "validated": {"L_task_N": validated[j, 0], "L_comp_kNpm": validated[j, 1],
-                                  "failed": bool(np.isnan(validated[j]).any())},
-                }
-                for j, i in enumerate(chosen)
-            ],
+            "solutions": [solution_record(free_params[i], validated[j], predicted=free_predicted[i])
+                          for j, i in enumerate(chosen)],
         },
         "robot_based": {
             "n_trials": len(robot_based),
@@ -434,13 +438,11 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     }
     if robot_expected is not None:  # its front's picks, judged as the robot-free solutions are
         picks, expected = robot_expected
-        results["robot_based"]["hypervolume_validated"] = hypervolume(finite(expected), reference)
-        results["robot_based"]["solutions"] = [
-            {"phase_stiffness_Npm": robot_params[i].tolist(),
-             "observed": {"L_task_N": robot_based[i, 0], "L_comp_kNpm": robot_based[i, 1]},
-             "validated": {"L_task_N": expected[j, 0], "L_comp_kNpm": expected[j, 1],
-                           "failed": bool(np.isnan(expected[j]).any())}}
-            for j, i in enumerate(picks)]
+        results["robot_based"].update(
+            hypervolume_validated=hypervolume(finite(expected), reference), validation_rollouts=rollouts,
+            validation_seconds=robot_validation_seconds,
+            solutions=[solution_record(robot_params[i], expected[j], observed=robot_based[i])
+                       for j, i in enumerate(picks)])
     (out_dir / "results.json").write_text(json.dumps(results, indent=2, default=float))
     pareto = (free_predicted[np.isfinite(free_predicted).all(axis=1)], finite(validated), finite(robot_based),
               reference, type(model).__name__)

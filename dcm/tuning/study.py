@@ -12,7 +12,8 @@ control's, paired by seed (Wilcoxon signed-rank). Per seed s it runs, each in it
   ``max(robot_based.n_trials)`` trials, reported as ``robot_based_<N>`` for each N by truncation;
 * ``prior``: the model-free control of :mod:`dcm.tuning.study_controls`;
 * ``robot_based_<N>``, only with ``validation_rollouts`` > 1: the front of the first N robot-based trials,
-  re-run like a robot-free tuner's solutions (:func:`dcm.tuning.study_controls.run_robot_based_picks`).
+  re-run like a robot-free tuner's solutions (:func:`dcm.tuning.study_controls.run_robot_based_picks`); for
+  N = all trials these are the DCM run's own ``robot_based.solutions``, taken rather than rolled out again.
 
 A finished run (``results.json`` present) is never redone; an unfinished one resumes from its trial logs; the
 folder remembers its settings and, once a run has finished, refuses other settings. Then it writes ``study.json`` (reference point,
@@ -98,12 +99,14 @@ def _run_robot_based_picks(cfg: Any, dcm: Tuner, seed: int, counts: list[int], o
     folders = {n: run_dir(out_dir, f"robot_based_{n}", seed) for n in counts}
     if all((folder / RESULTS).is_file() for folder in folders.values()):
         return
-    params, objectives = TrialLog.load(run_dir(out_dir, dcm.name, seed) / ROBOT_LOG).arrays()
+    dcm_dir = run_dir(out_dir, dcm.name, seed)
+    params, objectives = TrialLog.load(dcm_dir / ROBOT_LOG).arrays()
+    tuned = json.loads((dcm_dir / RESULTS).read_text())["robot_based"]  # its own validation of all its trials
     setup = setup_skill(tune_config(cfg, dcm, seed, None, folders[counts[0]]))
     for n, folder in folders.items():
         if not (folder / RESULTS).is_file():
             run_robot_based_picks(setup, params[:n], objectives[:n], int(cfg.robot_free.n_validate),
-                                  int(cfg.validation_rollouts), folder)
+                                  int(cfg.validation_rollouts), folder, tuned)
 
 
 def _check_runs(cfg: Any, tuner_list: list[Tuner], seed: int, reference: list[float] | None, out_dir: Path) -> None:

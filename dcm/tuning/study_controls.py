@@ -93,6 +93,8 @@ def prior_levels(min_Npm: float, max_Npm: float, n_levels: int) -> np.ndarray:
 
 def run_prior(setup: SkillSetup, n_levels: int, out_dir: Path, rollouts: int = 1) -> dict[str, Any]:
     """Validate the prior's schedules in the simulator; writes ``results.json`` to ``out_dir`` (a finished run)."""
+    from dcm.tuning.run import solution_record
+
     levels = prior_levels(setup.space.min_Npm, setup.space.max_Npm, n_levels)
     schedules = np.stack([np.full((setup.space.n_phases, 3), level) for level in levels])
     start = time.perf_counter()
@@ -103,35 +105,40 @@ def run_prior(setup: SkillSetup, n_levels: int, out_dir: Path, rollouts: int = 1
         "seed": int(setup.simulator.seed),
         "levels_Npm": levels.tolist(),
         "validation_seconds": seconds,
-        "solutions": [{"phase_stiffness_Npm": k.tolist(),
-                       "validated": {"L_task_N": v[0], "L_comp_kNpm": v[1], "failed": bool(np.isnan(v).any())}}
-                      for k, v in zip(schedules, validated)],
+        "solutions": [solution_record(k, v) for k, v in zip(schedules, validated)],
     }
     write_json(out_dir / "results.json", results)
     return results
 
 
 def run_robot_based_picks(setup: SkillSetup, params: np.ndarray, objectives: np.ndarray, n_validate: int,
-                          rollouts: int, out_dir: Path) -> dict[str, Any]:
+                          rollouts: int, out_dir: Path, tuned: dict[str, Any] | None = None) -> dict[str, Any]:
     """Re-run up to ``n_validate`` picks spread along the front of a robot-based search's trials (``params`` and
     their one-rollout ``objectives``, truncated to N) over ``rollouts`` rollouts each; writes ``results.json``.
 
     Why: in a domain with a per-rollout spread the search's own values of its front are the lucky draws it
     kept, so its I_H from them would be judged on other terms than the robot-free tuners' validated solutions.
+    ``tuned``: the ``robot_based`` entry of the tune run that ran the search; when it validated these very
+    picks over as many rollouts (its whole search, N = all trials), its numbers are taken instead of re-run.
     """
-    from dcm.tuning.run import validate_front
+    from dcm.tuning.run import pick_spread, solution_record, validate_front
 
-    start = time.perf_counter()
-    picks, validated = validate_front(setup.objective(rollouts), params, objectives, n_validate)
+    picks = pick_spread(objectives, n_validate)
+    reused = tuned is not None and tuned.get("validation_rollouts") == rollouts and "solutions" in tuned and \
+        [s["phase_stiffness_Npm"] for s in tuned["solutions"]] == params[picks].tolist()
+    if reused:
+        solutions, seconds = tuned["solutions"], tuned["validation_seconds"]
+    else:
+        start = time.perf_counter()
+        _, validated = validate_front(setup.objective(rollouts), params, objectives, n_validate)
+        seconds = time.perf_counter() - start
+        solutions = [solution_record(params[i], v, observed=objectives[i]) for i, v in zip(picks, validated)]
     results = {
         "tuner": f"robot_based_{len(params)}",
         "seed": int(setup.simulator.seed),
         "validation_rollouts": int(rollouts),
-        "validation_seconds": time.perf_counter() - start,
-        "solutions": [{"phase_stiffness_Npm": params[i].tolist(),
-                       "observed": {"L_task_N": objectives[i, 0], "L_comp_kNpm": objectives[i, 1]},
-                       "validated": {"L_task_N": v[0], "L_comp_kNpm": v[1], "failed": bool(np.isnan(v).any())}}
-                      for i, v in zip(picks, validated)],
+        "validation_seconds": seconds,
+        "solutions": solutions,
     }
     write_json(out_dir / "results.json", results)
     return results
