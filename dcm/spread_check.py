@@ -29,6 +29,13 @@ answer. The gap between ``distribution_k`` and ``mean_force`` is what a model dr
 over a model of the mean, before either has to learn anything. ``--predictor LABEL=PATH`` scores trained
 models (and references) on the same schedules beside the oracles, a DCM both ways: L_task of its samples'
 mean force, and their RMS L_task (``task_loss=over_samples``).
+
+**Is a DCM's spread calibrated?** Ranking by ``over_samples`` needs the samples to spread as the rollouts do.
+Every row also holds the truth's force spread (``force_spread_N``: the RMS over time and the three force
+axes of the per-step std over the n truth rollouts) and each DCM's (``LABEL, force spread``, the same of its
+samples). ``spread_calibration`` gives, per DCM, the median ratio of the two over every schedule (1:
+calibrated, below 1: too sure) and their within-skill correlation (does it know *which* schedules spread
+more, e.g. the stiff ones on an uncertain bowl height?).
 """
 
 from __future__ import annotations
@@ -47,8 +54,14 @@ from dcm.data.task_check import CONF_DIR, preset_skills
 
 PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
 TRUTHS = ("label", "expected")
-ROW_FACTS = ("label", "expected", "offset_std_mm", "friction_factor_std")  # a row's entries that predict nothing
+ROW_FACTS = ("label", "expected", "offset_std_mm", "friction_factor_std", "force_spread_N")  # they predict nothing
+SPREAD = ", force spread"  # a DCM's column of its samples' force spread (``LABEL, force spread``)
 TOP_PICKS = 3
+
+
+def force_spread(std: np.ndarray) -> np.ndarray:
+    """(..., H, 6) per-step std of the wrench -> (...,) its RMS over time and the three force axes [N]."""
+    return np.sqrt((np.asarray(std, dtype=np.float64)[..., :3] ** 2).mean(axis=(-1, -2)))
 
 
 def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int,
@@ -100,13 +113,29 @@ def summarise(skills: dict[str, list[dict[str, float]]]) -> dict[str, Any]:
     first = next((rows[0] for rows in skills.values() if rows), None)
     if first is None:
         raise ValueError("no schedule of any skill was rolled out without failing; nothing to score")
-    columns = [key for key in first if key not in ROW_FACTS]
+    columns = [key for key in first if key not in ROW_FACTS and not key.endswith(SPREAD)]
     label = np.array([r["label"] for rows in skills.values() for r in rows])
-    return {
+    out = {
         "R_within": {truth: {p: within_skill_r(skills, p, truth) for p in columns} for truth in TRUTHS},
         f"top{TOP_PICKS}_regret": {p: top_pick_regret(skills, p) for p in columns},
         "L_task_label_median": float(np.median(label)),
     }
+    spreads = [key for key in first if key.endswith(SPREAD)]
+    if spreads and "force_spread_N" in first:
+        out["spread_calibration"] = {key[:-len(SPREAD)]: spread_calibration(skills, key) for key in spreads}
+    return out
+
+
+def spread_calibration(skills: dict[str, list[dict[str, float]]], column: str) -> dict[str, float]:
+    """A predictor's force spread against the truth's: the median ratio over every schedule, and their
+    within-skill correlation (NaN where neither varies, e.g. with no per-rollout perturbation)."""
+    pred, true = (np.array([r[key] for rows in skills.values() for r in rows]) for key in (column, "force_spread_N"))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = pred / true
+    finite = np.isfinite(ratio)
+    return {"ratio_median": float(np.median(ratio[finite])) if finite.any() else float("nan"),
+            "R_within": within_skill_r(skills, column, "force_spread_N"),
+            "truth_median_N": float(np.median(true)), "predicted_median_N": float(np.median(pred))}
 
 
 def rescore(path: Path) -> dict[str, Any]:
@@ -134,6 +163,10 @@ def print_summary(out: dict[str, Any]) -> None:
         print(f"{name} | " + " | ".join(f"{r['label'][p]:.3f} / {r['expected'][p]:.3f}" for p in columns)
               + f" | {row['L_task_label_median']:.2f}")
         print(f"{name}, top-{TOP_PICKS} regret | " + " | ".join(f"{regret[p]:.2f}" for p in columns) + " |")
+        for label, cal in row.get("spread_calibration", {}).items():
+            print(f"{name}, {label}: force spread {cal['predicted_median_N']:.3f} N against the rollouts' "
+                  f"{cal['truth_median_N']:.3f} N (median ratio {cal['ratio_median']:.2f}), R within "
+                  f"{cal['R_within']:.3f}")
 
 
 def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dict[str, Any],
@@ -156,7 +189,8 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
         perturbed = trials[:-1]
         rows.append({**oracle_losses(forces, np.asarray(demo.force_demo), k, len(perturbed) - k),
                      "offset_std_mm": float(np.std([t.bowl_offset_m for t in perturbed]) * 1000),
-                     "friction_factor_std": float(np.std([t.bowl_friction_factor for t in perturbed]))})
+                     "friction_factor_std": float(np.std([t.bowl_friction_factor for t in perturbed])),
+                     "force_spread_N": float(force_spread(forces[k:-1].std(axis=0)))})
         inputs.append((trials[0].x_attr, schedule))
     if rows and predictors:
         from dcm.models.dcm import DCM
@@ -169,7 +203,8 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
                 mean, std = (np.asarray(a, dtype=np.float64) for a in model.predict_forces(
                     x_demo, force_demo, x_attr, stiffness, n_samples=model_samples or k))
                 columns = {label: task_loss(mean, force_demo),
-                           f"{label}, over samples": task_loss_over_samples(mean, std, force_demo)}
+                           f"{label}, over samples": task_loss_over_samples(mean, std, force_demo),
+                           label + SPREAD: force_spread(std)}
             else:
                 columns = {label: predict_task_loss(model, x_demo, force_demo, x_attr, stiffness,
                                                     n_samples=model_samples or k)}
@@ -179,10 +214,12 @@ def check_skill(sims: list[Any], spec: Any, n_schedules: int, k: int, space: dic
     return rows
 
 
-def load_predictors(specs: list[str], error: Callable[[str], Any]) -> dict[str, Any]:
+def load_predictors(specs: list[str], error: Callable[[str], Any], sampler: str | None = None,
+                    sampling_steps: int | None = None) -> dict[str, Any]:
     """``LABEL=PATH`` (a checkpoint, a reference JSON or ``copy_demo``) -> loaded predictors. A DCM is scored
     twice from the same samples: ``LABEL`` with L_task of their mean force, ``LABEL, over samples`` with
-    their RMS L_task (``task_loss=over_samples``)."""
+    their RMS L_task (``task_loss=over_samples``); ``sampler`` / ``sampling_steps`` override its sampler."""
+    from dcm.models.dcm import DCM
     from dcm.models.predict import load_model
 
     out: dict[str, Any] = {}
@@ -191,6 +228,11 @@ def load_predictors(specs: list[str], error: Callable[[str], Any]) -> dict[str, 
         if not sep or not label or not path:
             error(f"--predictor {spec!r}: expected LABEL=PATH")
         out[label] = load_model(path)
+        if isinstance(out[label], DCM) and (sampler or sampling_steps):
+            try:
+                out[label].set_sampler(sampler, sampling_steps)
+            except ValueError as err:
+                error(f"--predictor {spec!r}: {err}")
     return out
 
 
@@ -220,6 +262,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                         help="per-rollout log-normal spread(s) of the bowl's friction to compare")
     parser.add_argument("--predictor", nargs="*", default=[], metavar="LABEL=PATH",
                         help="also score these predictors (checkpoint, reference JSON, copy_demo) on the schedules")
+    parser.add_argument("--sampler", choices=("ddpm", "ddim"), default=None,
+                        help="a --predictor DCM's sampler (default: the checkpoint's own)")
+    parser.add_argument("--sampling-steps", type=int, default=None, help="its DDIM steps (dividing T)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="reports/spread_check")
     parser.add_argument("--rescore", metavar="JSON", help="recompute the statistics of a stored spread_check.json "
@@ -248,7 +293,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.first_skill < 0 or not jobs:
         parser.error(f"--first-skill {args.first_skill} --max-skills {args.max_skills}: "
                      f"no skill of {args.splits} left")
-    predictors = load_predictors(args.predictor, parser.error)
+    predictors = load_predictors(args.predictor, parser.error, args.sampler, args.sampling_steps)
     if predictors:
         import torch
 
@@ -278,7 +323,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     bar.close()
     out = {"dataset": args.dataset, "splits": args.splits, "embodiment": preset["embodiment"], "k": args.k,
            "n_truth": n_truth, "model_samples": model_samples, "n_schedules": args.n_schedules,
-           "seed": args.seed, "predictors": args.predictor, "seconds": time.perf_counter() - start,
+           "seed": args.seed, "predictors": args.predictor, "sampler": args.sampler,
+           "sampling_steps": args.sampling_steps, "seconds": time.perf_counter() - start,
            "by_spread": results}
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)

@@ -104,7 +104,7 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     """The known answer: with no per-rollout perturbation every rollout repeats the label, so every oracle
     has R = 1; with one, the rollouts differ and the oracles fall below 1."""
     result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "4", "--k", "1",
-                                "--bowl-offset-mm", "0", "3", "--out", str(tmp_path), "--predictor", "copy=copy_demo"])
+                                "--n-truth", "2", "--bowl-offset-mm", "0", "3", "--out", str(tmp_path), "--predictor", "copy=copy_demo"])
     exact, offset = result["by_spread"]["bowl_offset_std_mm=0"], result["by_spread"]["bowl_offset_std_mm=3"]
     for truth in spread_check.TRUTHS:
         assert {p: exact["R_within"][truth][p] for p in spread_check.PREDICTORS} == {
@@ -113,6 +113,8 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     assert len(rows) == 4 and all(r["offset_std_mm"] > 0 for r in rows)
     assert any(r["label"] != r["distribution_1"] for r in rows)
     assert all(r["copy"] == 0.0 for r in rows), "copying F_demo predicts no force error at all"
+    assert all(r["force_spread_N"] == 0.0 for r in next(iter(exact["skills"].values())))  # the same force each time
+    assert all(r["force_spread_N"] > 0.0 for r in rows)
     stored = tmp_path / "spread_check.json"
     assert json.loads(stored.read_text())["k"] == 1
     assert exact["top3_regret"]["mean_force"] == pytest.approx(0.0)
@@ -174,7 +176,45 @@ def test_the_check_compares_friction_spreads_with_more_truth_rollouts(tmp_path, 
     assert all(r["friction_factor_std"] > 0 and r["offset_std_mm"] == 0 for r in rows)
     assert all(np.isfinite(r["dcm"]) and np.isfinite(r["dcm, over samples"]) for r in rows)
     assert any(r["dcm, over samples"] != r["dcm"] for r in rows), "the samples' spread counts one way only"
+    assert all(r["force_spread_N"] > 0 and r["dcm, force spread"] > 0 for r in rows)
+    calibration = result["by_spread"]["bowl_friction_std=0.3"]["spread_calibration"]
+    assert list(calibration) == ["dcm"] and "dcm, force spread" not in result["by_spread"][
+        "bowl_friction_std=0.3"]["R_within"]["label"], "a spread is not a prediction of L_task"
+    ratios = [r["dcm, force spread"] / r["force_spread_N"] for r in rows]
+    assert calibration["dcm"]["ratio_median"] == pytest.approx(float(np.median(ratios)))
     again = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "3", "--k", "1",
                                "--n-truth", "3", "--model-samples", "2", "--friction-std", "0.3",
                                "--out", str(tmp_path / "again"), "--predictor", f"dcm={tiny_checkpoint}"])
     assert next(iter(again["by_spread"]["bowl_friction_std=0.3"]["skills"].values())) == rows, "same seed, same scores"
+
+
+def test_spread_calibration_on_known_cases() -> None:
+    """The force spread is the RMS over time and force axes of the per-step std (torques left out); a model
+    spreading half as much as the rollouts, in proportion, has median ratio 0.5 and within-skill R 1."""
+    std = np.zeros((2, 5, 6))
+    std[0, :, :3], std[1, :, :3], std[:, :, 3:] = 2.0, [[1.0, 2.0, 2.0]], 9.0
+    np.testing.assert_allclose(spread_check.force_spread(std), [2.0, np.sqrt(3.0)])
+    truth = {"a": [0.2, 0.4, 0.8], "b": [1.0, 2.0, 1.5]}
+    skills = {name: [{"force_spread_N": t, "m, force spread": 0.5 * t} for t in values]
+              for name, values in truth.items()}
+    calibration = spread_check.spread_calibration(skills, "m, force spread")
+    assert calibration["ratio_median"] == pytest.approx(0.5) and calibration["R_within"] == pytest.approx(1.0)
+    assert calibration["truth_median_N"] == pytest.approx(0.9)
+    for rows in skills.values():  # the same sizes, in the opposite order of the schedules
+        spreads = [r["force_spread_N"] for r in rows]
+        for row in rows:
+            row["m, force spread"] = 0.5 * (max(spreads) + min(spreads) - row["force_spread_N"])
+    assert spread_check.spread_calibration(skills, "m, force spread")["R_within"] == pytest.approx(-1.0)
+
+
+def test_a_dcm_predictor_takes_the_chosen_sampler(tiny_checkpoint) -> None:
+    """``--sampler ddim --sampling-steps`` score a DCM as the tuner samples it; steps that do not divide T
+    are an error naming the predictor."""
+    def fail(message: str):
+        raise SystemExit(message)
+
+    model = spread_check.load_predictors([f"dcm={tiny_checkpoint}"], fail, "ddim", 5)["dcm"]
+    assert (model.cfg.sampler, model.cfg.sampling_steps) == ("ddim", 5)
+    assert spread_check.load_predictors([f"dcm={tiny_checkpoint}"], fail)["dcm"].cfg.sampler == "ddpm"
+    with pytest.raises(SystemExit, match="--predictor 'dcm="):
+        spread_check.load_predictors([f"dcm={tiny_checkpoint}"], fail, "ddim", 3)
