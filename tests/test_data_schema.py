@@ -44,6 +44,9 @@ def test_round_trip_and_stats(hand_made: Path) -> None:
     assert train.horizon == H and train.control_hz == 20.0
     assert train.attrs["format_version"] == FORMAT_VERSION and train.attrs["channels"]["K"][0] == "Kx_Npm"
     assert train.meta[0]["demo"] == {"family": "spiral", "turns": 2}
+    # The numerics that wrote it: a changed draw can then be told from a changed library.
+    assert train.attrs["packages"]["numpy"] == np.__version__
+    assert set(train.attrs["packages"]) == {"python", "numpy", "mujoco", "robosuite"}
     np.testing.assert_array_equal(train.demo_ids, [0, 0, 1])
     np.testing.assert_allclose(train.stats["F_obs"]["mean"], train.arrays["F_obs"].reshape(-1, 6).mean(0), rtol=1e-5)
     everything = load_dataset(hand_made)

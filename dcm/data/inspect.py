@@ -39,6 +39,12 @@ def within_demo_spread(L_task: np.ndarray, demo_ids: np.ndarray) -> str:
     return f"{np.median(ratios):.2f} [{min(ratios):.2f}–{max(ratios):.2f}]"
 
 
+def _packages(packages: dict[str, str] | None) -> str:
+    if not packages:
+        return "unrecorded package versions (a file from before they were recorded)"
+    return ", ".join(f"{name} {v}" for name, v in packages.items())
+
+
 def summarize(path: Path) -> str:
     """A human-readable summary; loading validates the file first, so a damaged file fails here."""
     everything = load_dataset(path, include_failed=True)
@@ -46,7 +52,8 @@ def summarize(path: Path) -> str:
     failed = np.array([bool(m.get("failed", False)) for m in everything.meta])
     lines = [
         f"{path}",
-        f"  format {attrs['format_version']}, dcm {attrs.get('dcm_version')}, created {attrs.get('created')}",
+        f"  format {attrs['format_version']}, dcm {attrs.get('dcm_version')}, created {attrs.get('created')}, "
+        f"written with {_packages(attrs.get('packages'))}",
         f"  dataset {attrs.get('dataset', '?')}, embodiment {attrs.get('embodiment')}, "
         f"domain {(attrs.get('domain') or {}).get('name', attrs.get('domain'))}, search {attrs.get('search', '?')}",
         f"  control {everything.control_hz:g} Hz, horizon H={everything.horizon} "

@@ -165,7 +165,7 @@ def merge_shards(out: str | Path, shard_paths: Sequence[str | Path]) -> int:
         masks[split] = sorted(masks[split])
     # failed trials are out of the masks already; put them back only as stored records
     attrs = {k: v for k, v in roots[0].items() if k not in ("shard_index", "shard_count", "created", "horizon",
-                                                              "format_version", "dcm_version", "channels",
+                                                              "format_version", "dcm_version", "packages", "channels",
                                                               "stats_split")}
     attrs["merged_from"] = [p.name for p in shard_paths]
     for traj in trajectories:

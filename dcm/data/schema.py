@@ -5,7 +5,8 @@ anything that would silently train on garbage (wrong shapes, NaN, another contro
 
 Layout, format version "1"::
 
-    /                   attrs: format_version, dcm_version, control_hz, horizon, embodiment, domain,
+    /                   attrs: format_version, dcm_version, packages (JSON: the versions of python, numpy,
+                               mujoco and robosuite that wrote it), control_hz, horizon, embodiment, domain,
                                channels (JSON), config (YAML), created (ISO 8601), + any extra attrs
     /data/traj_%06d     one group per trial; attrs: demo_id, demo (JSON), bowl (JSON), embodiment,
                                domain (JSON), seed, trial, L_task, L_comp, failed, failure_reason, ...
@@ -204,6 +205,24 @@ def _is_failed(traj: Mapping[str, Any]) -> bool:
 
 
 # ----------------------------------------------------------------------------------------------- writer
+RECORDED_PACKAGES = ("numpy", "mujoco", "robosuite")
+
+
+def package_versions() -> dict[str, str]:
+    """The versions a file's numbers depend on. Why: the same seed gives the same bytes only with the same
+    numerics, and a file that does not say which wrote it cannot tell a changed draw from a changed library."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for name in RECORDED_PACKAGES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "absent"
+    return out
+
+
 def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, Any]],
                   masks: Mapping[str, Sequence[str]], attrs: Mapping[str, Any]) -> None:
     """Write a complete dataset file atomically (temp file in the same directory + ``os.replace``).
@@ -211,7 +230,8 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
     Each trajectory dict holds the arrays of :data:`FIELDS`, ``L_task``, ``L_comp`` and optionally ``name``
     (default ``traj_%06d`` by position), ``failed``/``failure_reason`` and any other metadata (stored as group
     attributes, dicts/lists as JSON). Failed trials are stored but dropped from the masks. ``attrs`` must hold
-    ``control_hz``; ``horizon``, ``format_version``, ``dcm_version``, ``channels`` and ``created`` are filled in.
+    ``control_hz``; ``horizon``, ``format_version``, ``dcm_version``, ``packages``, ``channels`` and ``created``
+    are filled in.
     Stats cover the train split (all usable trials if the file has no train split, e.g. a test-only import).
     """
     from dcm import __version__
@@ -276,6 +296,7 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
     root_attrs.update(
         format_version=FORMAT_VERSION,
         dcm_version=__version__,
+        packages=package_versions(),
         horizon=horizon,
         channels=CHANNELS,
         stats_split=stats_split,
