@@ -50,6 +50,18 @@ def test_the_offset_is_seeded_and_off_by_default(demo) -> None:
         DomainSpec(bowl_offset_std_m=0.5)
 
 
+def test_the_draw_does_not_hang_on_the_last_bits_of_the_demo(demo) -> None:
+    """Another CPU records the same demo with other last bits; the bowl must be drawn where it was, or every
+    result of a spread domain changes with the machine (it did: the same seeds drew other offsets)."""
+    from dataclasses import replace
+
+    sim = Simulator("tool", FLAT, DomainSpec(bowl_offset_std_m=0.003), seed=4)
+    stiffness = sim.constant_stiffness(demo, 500.0)
+    nudged = replace(demo, x_demo=np.nextafter(demo.x_demo, np.inf), force_demo=demo.force_demo * (1 + 1e-15))
+    assert sim.rollout(nudged, stiffness).bowl_offset_m == sim.rollout(demo, stiffness).bowl_offset_m
+    assert sim.rollout(demo, stiffness * 1.01).bowl_offset_m != sim.rollout(demo, stiffness).bowl_offset_m
+
+
 def test_a_repeated_rollout_draws_again_and_repeat_zero_is_the_trial_of_old(demo) -> None:
     """``repeat`` re-runs a schedule with another draw of the spread, as re-running it on a robot would;
     without a spread the physics is the same, so every repeat gives the same forces."""

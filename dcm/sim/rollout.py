@@ -9,8 +9,10 @@ gives ``H = 160`` control steps. Step ``k`` applies command ``k`` for one period
 its end.
 
 Determinism: sensor noise and the bowl's offset and friction (``DomainSpec.bowl_offset_std_m``,
-``bowl_friction_std``) are drawn from a generator seeded by the simulator seed and a hash of the inputs, so
-the same inputs give identical arrays, whatever ran before; another simulator seed gives another draw.
+``bowl_friction_std``) are drawn from a generator seeded by the simulator seed and a hash of the inputs (the
+demo's spec and the stiffness schedule), so the same inputs give identical arrays, whatever ran before;
+another simulator seed gives another draw. The hash leaves out the simulated demo arrays, whose last bits
+differ between CPUs: with them, another machine drew every rollout's bowl offset anew.
 """
 
 from __future__ import annotations
@@ -262,8 +264,9 @@ class Simulator:
         x_attr = self._attractor(demo, applied)
         start = demo.start_pose if demo.start_pose is not None else demo.spec.start_pose(self.control_hz)
         emb = self.embodiment_for(demo.spec.bowl)
-        digest = (x_demo.tobytes(), force_demo.tobytes(), stiffness.tobytes())
-        rng = self._rng("rollout", *digest, *([repeat] if repeat else []))
+        # Keyed on what the caller chose (the demo's spec, the schedule), not on simulated floats: those differ in
+        # their last bits between CPUs, and any hash of them would give every rollout another draw there.
+        rng = self._rng("rollout", demo.spec.to_json(), stiffness.tobytes(), *([repeat] if repeat else []))
         offset, friction_factor = self._bowl_draw(rng)
         with _bowl_replaced(emb, offset, friction_factor):
             run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng)
