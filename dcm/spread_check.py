@@ -60,8 +60,10 @@ TOP_PICKS = 3
 
 
 def force_spread(std: np.ndarray) -> np.ndarray:
-    """(..., H, 6) per-step std of the wrench -> (...,) its RMS over time and the three force axes [N]."""
-    return np.sqrt((np.asarray(std, dtype=np.float64)[..., :3] ** 2).mean(axis=(-1, -2)))
+    """(..., H, 6) per-step std of the wrench -> (...,) its RMS over time and the three force axes [N]: the
+    reduction of L_task, so that ``over_samples`` L_task² = (L_task of the mean)² + force spread²."""
+    std = np.asarray(std, dtype=np.float64)
+    return task_loss(std, np.zeros_like(std))
 
 
 def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int,
