@@ -3,7 +3,8 @@
 ``ckpt`` is a DCM/Baseline checkpoint, a stiffness reference JSON (``python -m dcm.models.references fit``)
 or ``copy_demo``. Writes a JSON file with the within-skill and pooled correlations of predicted vs true
 L_task (``R_within``, its bootstrap 90 % interval ``R_within_lo`` / ``R_within_hi``, ``R_within_spearman``,
-``R_within_n_skills``, ``R_pooled``; ``R`` = ``R_pooled``),
+``R_within_n_skills``, ``R_pooled``; ``R`` = ``R_pooled``), ``top3_regret`` (what keeping the 3 best-ranked
+schedules per skill loses: 0 the truly best, 1 a random pick),
 ``L_task_mae_N`` and, for force predictors, L_MSE (normalised units, learned models only), per-axis RMSE
 [N, N·m], ``force_rmse_N``, ``force_rmse_copy_N`` and ``force_rmse_ratio_copy``; plus n and what produced
 them (model kind, T, sampler, samples, seed). A learned model is reported beside two references under
@@ -30,7 +31,7 @@ from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
 from dcm.models.configuration import ModelInputError
 from dcm.models.dcm import DCM, ForceModel
-from dcm.models.metrics import force_prediction_metrics, ranking_metrics
+from dcm.models.metrics import REGRET_KEY, force_prediction_metrics, ranking_metrics
 from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss
 from dcm.models.references import COPY_DEMO, STIFFNESS_RIDGE, CopyDemo, StiffnessRegression, dataset_phases
 
@@ -155,13 +156,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
     rows = {result["model"]: result, **result.get("references", {})}
     log.info("n=%d trajectories, %d skills (%s split) -> %s", result["n"], result["n_skills"], result["split"], out)
-    log.info("%-16s %9s %15s %9s %9s %11s %12s", "predictor", "R_within", "90% interval", "Spearman", "R_pooled",
-             "L_task_MAE", "force_RMSE")
+    log.info("%-16s %9s %15s %9s %12s %9s %11s %12s", "predictor", "R_within", "90% interval", "Spearman",
+             "top3_regret", "R_pooled", "L_task_MAE", "force_RMSE")
     for name, row in rows.items():
         interval = f"[{_fmt(row.get('R_within_lo'))}, {_fmt(row.get('R_within_hi'))}]"
-        log.info("%-16s %9s %15s %9s %9s %11s %12s", name, _fmt(row.get("R_within")), interval,
-                 _fmt(row.get("R_within_spearman")), _fmt(row.get("R_pooled")), _fmt(row.get("L_task_mae_N")),
-                 _fmt(row.get("force_rmse_N")))
+        log.info("%-16s %9s %15s %9s %12s %9s %11s %12s", name, _fmt(row.get("R_within")), interval,
+                 _fmt(row.get("R_within_spearman")), _fmt(row.get(REGRET_KEY)), _fmt(row.get("R_pooled")),
+                 _fmt(row.get("L_task_mae_N")), _fmt(row.get("force_rmse_N")))
     return result
 
 

@@ -28,11 +28,13 @@ import numpy as np
 from dcm.control.objectives import TASK_LOSSES
 from dcm.model_study.stats import ALPHA, p_text, welch_test
 from dcm.models.export import run_checkpoint
+from dcm.models.metrics import REGRET_KEY, TOP_PICKS
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
 COLUMNS = (("force_rmse_N", "force RMSE [N]"), ("force_rmse_ratio_copy", "÷ copy-F_demo"),
            ("R_within", "R within skill"), (INTERVAL, "R within: 90 % interval"),
-           ("R_within_spearman", "Spearman within"), ("R_pooled", "R pooled"))
+           ("R_within_spearman", "Spearman within"), (REGRET_KEY, f"top-{TOP_PICKS} regret"),
+           ("R_pooled", "R pooled"))
 
 
 def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overrides: Any) -> dict[str, Any]:
@@ -44,7 +46,7 @@ def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overr
     ckpt = run_checkpoint(run_dir)
     if path.is_file():
         cached = json.loads(path.read_text())
-        if cached.get("ckpt") == str(ckpt.resolve()) and "R_within_lo" in cached:
+        if cached.get("ckpt") == str(ckpt.resolve()) and REGRET_KEY in cached:
             return cached
     result = evaluate(ckpt, dataset, split=split, **overrides)
     path.write_text(json.dumps(result, indent=1))

@@ -56,7 +56,7 @@ PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
 TRUTHS = ("label", "expected")
 ROW_FACTS = ("label", "expected", "offset_std_mm", "friction_factor_std", "force_spread_N")  # they predict nothing
 SPREAD = ", force spread"  # a DCM's column of its samples' force spread (``LABEL, force spread``)
-TOP_PICKS = 3
+TOP_PICKS = 3  # = dcm.models.metrics.TOP_PICKS, kept here so that the module loads without torch
 
 
 def force_spread(std: np.ndarray) -> np.ndarray:
@@ -85,29 +85,28 @@ def oracle_losses(forces: np.ndarray, force_demo: np.ndarray, k: int,
     }
 
 
+def _columns(skills: dict[str, list[dict[str, float]]], predictor: str, truth: str
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A predictor's and a truth's values over every skill's schedules, with each schedule's skill index."""
+    rows = [(r[predictor], r[truth], i) for i, skill in enumerate(skills.values()) for r in skill]
+    return tuple(np.array(a) for a in zip(*rows))  # type: ignore[return-value]
+
+
 def within_skill_r(skills: dict[str, list[dict[str, float]]], predictor: str, truth: str = "label") -> float:
     """The project's R_within (``dcm.models.metrics.within_skill_correlation``) of a predictor against the
     truth over each skill's schedules: NaN for a predictor that ranks nothing (copy-F_demo)."""
     from dcm.models.metrics import within_skill_correlation
 
-    rows = [(r[predictor], r[truth], i) for i, skill in enumerate(skills.values()) for r in skill]
-    pred, true, ids = (np.array(a) for a in zip(*rows))
-    return within_skill_correlation(pred, true, ids)[0]
+    return within_skill_correlation(*_columns(skills, predictor, truth))[0]
 
 
 def top_pick_regret(skills: dict[str, list[dict[str, float]]], predictor: str, n_top: int = TOP_PICKS) -> float:
-    """What a tuner keeping a predictor's ``n_top`` best-ranked schedules of a skill loses in expected loss:
-    (their mean expected L_task - that of the truly best ``n_top``) / (the skill's mean - the same), averaged
-    over skills. 0 keeps the truly best, 1 is a random pick, above 1 worse than random; NaN for a predictor
-    that ranks nothing (copy-F_demo)."""
-    regrets = []
-    for rows in skills.values():
-        expected, pred = (np.array([r[key] for r in rows]) for key in ("expected", predictor))
-        if np.ptp(pred) == 0 or np.ptp(expected) == 0:
-            continue
-        kept, best = expected[np.argsort(pred, kind="stable")[:n_top]], np.sort(expected)[:n_top]
-        regrets.append((kept.mean() - best.mean()) / (expected.mean() - best.mean()))
-    return float(np.mean(regrets)) if regrets else float("nan")
+    """What a tuner keeping a predictor's ``n_top`` best-ranked schedules of a skill loses in expected loss
+    (``dcm.models.metrics.within_skill_regret``): 0 keeps the truly best, 1 is a random pick; NaN for a
+    predictor that ranks nothing (copy-F_demo)."""
+    from dcm.models.metrics import within_skill_regret
+
+    return within_skill_regret(*_columns(skills, predictor, "expected"), n_top=n_top)[0]
 
 
 def summarise(skills: dict[str, list[dict[str, float]]]) -> dict[str, Any]:

@@ -15,6 +15,7 @@ from dcm.models.metrics import (
     ranking_metrics,
     within_skill_correlation,
     within_skill_interval,
+    within_skill_regret,
 )
 
 
@@ -52,6 +53,38 @@ def test_shuffled_predictions_give_zero_within_skill_correlation() -> None:
     assert abs(m["R_within"]) < 0.05 and abs(m["R_within_spearman"]) < 0.05
     assert m["R_within_n_skills"] == n_skills
     assert m["R_pooled"] > 0.5  # the levels alone make the pooled correlation look good
+
+
+def test_regret_is_zero_for_the_right_order_one_for_a_random_pick_and_above_for_the_reverse() -> None:
+    rng = np.random.default_rng(2)
+    n_skills, n_trials = 400, 12
+    skills = np.repeat(np.arange(n_skills), n_trials)
+    true = rng.lognormal(size=n_skills * n_trials) + skills  # levels differ by skill: regret is per skill
+    assert within_skill_regret(2.0 * true + 5.0, true, skills) == (0.0, n_skills)  # any monotone map keeps the best
+    shuffled = np.concatenate([rng.permutation(true[skills == s]) for s in range(n_skills)])
+    assert within_skill_regret(shuffled, true, skills)[0] == pytest.approx(1.0, abs=0.05)
+    assert within_skill_regret(-true, true, skills)[0] > 2.0
+    assert ranking_metrics(-true, true, skills)["top3_regret"] == within_skill_regret(-true, true, skills)[0]
+
+
+def test_regret_sees_what_a_pearson_r_driven_by_one_bad_trial_hides() -> None:
+    # one skill whose L_task is flat but for one bad trial (the held-out line is like this): a predictor that
+    # spots the bad trial and orders the rest backwards has a high Pearson R and keeps the worst of the rest
+    true = np.array([0.50, 0.20, 0.21, 0.22, 0.23, 0.24, 0.25, 0.26])
+    pred = np.array([0.90, 0.26, 0.25, 0.24, 0.23, 0.22, 0.21, 0.20])
+    skills = np.zeros(true.size, dtype=int)
+    m = ranking_metrics(pred, true, skills)
+    assert m["R_within"] > 0.9 and m["R_within_spearman"] < 0.0
+    kept, best = np.array([0.26, 0.25, 0.24]).mean(), np.array([0.20, 0.21, 0.22]).mean()
+    assert m["top3_regret"] == pytest.approx((kept - best) / (true.mean() - best))
+
+
+def test_regret_skips_skills_with_too_few_trials_or_a_constant_prediction() -> None:
+    true = np.array([1.0, 2.0, 3.0, 4.0, 1.0, 2.0, 3.0, 4.0, 1.0, 2.0, 3.0])
+    pred = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 5.0, 5.0, 5.0, 3.0, 2.0, 1.0])
+    skills = np.array([0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2])  # skill 1: constant prediction, skill 2: only 3 trials
+    assert within_skill_regret(pred, true, skills) == (0.0, 1)
+    assert math.isnan(within_skill_regret(pred[4:], true[4:], skills[4:])[0])
 
 
 def test_mean_over_skills_matches_scipy_per_skill() -> None:

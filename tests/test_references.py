@@ -120,7 +120,7 @@ def baseline_ckpt(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFact
     return train_tiny(Baseline, tiny_dataset_path, tmp_path_factory.mktemp("ref_ckpt") / "baseline.ckpt", 3)
 
 
-RANKING = {"R_within", "R_within_spearman", "R_within_n_skills", "R_pooled", "R", "L_task_mae_N"}
+RANKING = {"R_within", "R_within_spearman", "R_within_n_skills", "R_pooled", "R", "L_task_mae_N", "top3_regret"}
 FORCES = {"force_rmse_N", "force_rmse_copy_N", "force_rmse_ratio_copy", "rmse_Fx", "rmse_Fz"}
 
 

@@ -6,6 +6,8 @@
   what checkpoints are selected on (``checkpoint.monitor`` in conf/train.yaml). See :mod:`dcm.models.metrics`.
 * ``R_pooled`` (and ``R``, the same number under its old name): Pearson correlation over all trajectories.
 * ``L_task_mae_N``: mean absolute error of predicted L_task.
+* ``top3_regret``: what a tuner keeping each skill's 3 best-ranked schedules loses (0: the truly best,
+  1: a random pick; :func:`dcm.models.metrics.within_skill_regret`).
 * ``L_MSE``: mean squared error of the predicted (k-sample mean) and true wrench, normalised units [-1, 1].
 * ``rmse_<axis>``: per-axis RMSE of the wrench [N for forces, N·m for torques]; ``force_rmse_N`` over the
   three force axes, next to ``force_rmse_copy_N`` (predicting F_obs := F_demo) and their ratio

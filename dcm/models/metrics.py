@@ -29,6 +29,8 @@ from dcm.data.schema import CHANNELS
 Method = Literal["pearson", "spearman"]
 WRENCH_AXES: tuple[str, ...] = tuple(c.split("_")[0] for c in CHANNELS["F_obs"])  # Fx, Fy, Fz, Tx, Ty, Tz
 MIN_TRIALS = 3  # a correlation over 2 points is always +-1: it says nothing about ranking
+TOP_PICKS = 3  # schedules of a skill a tuner keeps in the regret metric (about the size of a validated front)
+REGRET_KEY = f"top{TOP_PICKS}_regret"
 CI_LEVEL, CI_RESAMPLES = 0.9, 1000  # the bootstrap interval of R_within
 
 
@@ -79,6 +81,28 @@ def within_skill_correlation(pred: np.ndarray, true: np.ndarray, skills: np.ndar
     return (float(np.mean(values)) if values else float("nan")), len(values)
 
 
+def within_skill_regret(pred: np.ndarray, true: np.ndarray, skills: np.ndarray, n_top: int = TOP_PICKS
+                        ) -> tuple[float, int]:
+    """What keeping a predictor's ``n_top`` best-ranked schedules of each skill loses: (their mean true L_task
+    - that of the truly best ``n_top``) / (the skill's mean - the same), averaged over skills, and how many
+    skills entered the mean.
+
+    0 keeps the truly best schedules, 1 is a random pick, above 1 is worse than random. Unlike R_within, it
+    ignores how well a predictor orders the schedules a tuner discards, which decides a Pearson R on a skill
+    whose L_task is flat but for a few bad trials. Skills with at most ``n_top`` finite trials, or a constant
+    predicted or true L_task, are skipped; NaN when none is left.
+    """
+    pred, true, groups = _skill_trials(pred, true, skills, max(MIN_TRIALS, n_top + 1), "within_skill_regret")
+    values = []
+    for sel in groups:
+        p, t = pred[sel], true[sel]
+        if np.ptp(p) == 0 or np.ptp(t) == 0:
+            continue
+        kept, best = t[np.argsort(p, kind="stable")[:n_top]], np.sort(t)[:n_top]
+        values.append((kept.mean() - best.mean()) / (t.mean() - best.mean()))
+    return (float(np.mean(values)) if values else float("nan")), len(values)
+
+
 def _rowwise_pearson(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
     """Pearson correlation of each row pair of two (B, n) arrays; NaN where a row is constant."""
     pred = pred - pred.mean(axis=1, keepdims=True)
@@ -120,18 +144,20 @@ def ranking_metrics(L_pred: np.ndarray, L_true: np.ndarray, skills: np.ndarray |
     Keys: ``R_within`` / ``R_within_spearman`` (per-skill Pearson / Spearman averaged over skills; the
     checkpoint-selection metric), ``R_within_n_skills`` (skills used), ``R_within_lo`` / ``R_within_hi`` (the
     bootstrap 90 % interval of ``R_within``, :func:`within_skill_interval`), ``R_pooled`` (Pearson over all
-    trajectories), ``L_task_mae_N`` (mean absolute error of L_task). ``skills=None`` (no labels) leaves
+    trajectories), ``L_task_mae_N`` (mean absolute error of L_task), ``top3_regret``
+    (:func:`within_skill_regret`: what keeping the 3 best-ranked schedules per skill loses). ``skills=None`` (no labels) leaves
     the within-skill values NaN.
     """
     L_pred = np.asarray(L_pred, dtype=np.float64).ravel()
     L_true = np.asarray(L_true, dtype=np.float64).ravel()
     if skills is None:
-        r_within, r_within_s, n_skills = float("nan"), float("nan"), 0
+        r_within, r_within_s, regret, n_skills = float("nan"), float("nan"), float("nan"), 0
         interval = (float("nan"), float("nan"))
     else:
         r_within, n_skills = within_skill_correlation(L_pred, L_true, skills, "pearson")
         r_within_s, _ = within_skill_correlation(L_pred, L_true, skills, "spearman")
         interval = within_skill_interval(L_pred, L_true, skills)
+        regret, _ = within_skill_regret(L_pred, L_true, skills)
     finite = np.isfinite(L_pred) & np.isfinite(L_true)
     return {
         "R_within": r_within,
@@ -139,6 +165,7 @@ def ranking_metrics(L_pred: np.ndarray, L_true: np.ndarray, skills: np.ndarray |
         "R_within_n_skills": int(n_skills),
         "R_within_lo": interval[0],
         "R_within_hi": interval[1],
+        REGRET_KEY: regret,
         "R_pooled": correlation(L_pred, L_true, "pearson"),
         "L_task_mae_N": float(np.abs(L_pred[finite] - L_true[finite]).mean()) if finite.any() else float("nan"),
     }
@@ -182,5 +209,5 @@ def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.n
     return {**force_metrics(F_pred, F_obs, F_demo), **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
 
 
-__all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
-           "ranking_metrics", "within_skill_correlation", "within_skill_interval"]
+__all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "REGRET_KEY", "TOP_PICKS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
+           "ranking_metrics", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]
