@@ -145,8 +145,8 @@ def ranking_metrics(L_pred: np.ndarray, L_true: np.ndarray, skills: np.ndarray |
     checkpoint-selection metric), ``R_within_n_skills`` (skills used), ``R_within_lo`` / ``R_within_hi`` (the
     bootstrap 90 % interval of ``R_within``, :func:`within_skill_interval`), ``R_pooled`` (Pearson over all
     trajectories), ``L_task_mae_N`` (mean absolute error of L_task), ``top3_regret``
-    (:func:`within_skill_regret`: what keeping the 3 best-ranked schedules per skill loses). ``skills=None`` (no labels) leaves
-    the within-skill values NaN.
+    (:func:`within_skill_regret`: what keeping the 3 best-ranked schedules per skill loses).
+    ``skills=None`` (no labels) leaves the within-skill values NaN.
     """
     L_pred = np.asarray(L_pred, dtype=np.float64).ravel()
     L_true = np.asarray(L_true, dtype=np.float64).ravel()
