@@ -112,6 +112,13 @@ def test_top_pick_regret_on_known_cases() -> None:
     assert np.isnan(spread_check.top_pick_regret(skills, "flat"))
 
 
+def test_the_regret_key_is_the_metrics_one() -> None:
+    """spread_check keeps its own TOP_PICKS to load without torch; the two must not drift apart."""
+    from dcm.models.metrics import REGRET_KEY, TOP_PICKS
+
+    assert spread_check.TOP_PICKS == TOP_PICKS and f"top{spread_check.TOP_PICKS}_regret" == REGRET_KEY
+
+
 def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     """The known answer: with no per-rollout perturbation every rollout repeats the label, so every oracle
     has R = 1; with one, the rollouts differ and the oracles fall below 1."""
