@@ -212,3 +212,35 @@ def test_task_loss_option_counts_the_spread_of_a_dcms_samples() -> None:
         model.set_task_loss("median")
     with pytest.raises(ModelInputError, match="task_loss must be one of"):
         DCM(net=dict(TINY_NET), task_loss="median")
+
+
+def test_top_step_fraction_puts_that_share_of_the_batch_at_pure_noise() -> None:
+    """0 keeps the uniform draw as it was (same generator, same steps); 0.5 sets half the rows to T-1 and
+    leaves the others' uniform draws as they were; the DCM's training loss sees those steps."""
+    sched = diffusion.make_scheduler("ddpm", "linear", 30, "sample")
+    uniform = diffusion.sample_timesteps(sched, 32, "cpu", torch.Generator().manual_seed(3))
+    same = diffusion.sample_timesteps(sched, 32, "cpu", torch.Generator().manual_seed(3), top_step_fraction=0.0)
+    half = diffusion.sample_timesteps(sched, 32, "cpu", torch.Generator().manual_seed(3), top_step_fraction=0.5)
+    assert torch.equal(uniform, same)
+    assert (uniform == 29).float().mean() < 0.5
+    assert torch.equal(half[:16], torch.full((16,), 29)) and torch.equal(half[16:], uniform[16:])
+    assert torch.equal(diffusion.sample_timesteps(sched, 5, "cpu", None, top_step_fraction=1.0), torch.full((5,), 29))
+
+    seen = []
+    model = DCM(net=dict(TINY_NET), top_step_fraction=0.25, ema_decay=0.0)
+    gen = torch.Generator().manual_seed(0)
+    cond = _positive_stiffness_cond(gen, n=8)
+    model.fit_normalizers(cond, cond[..., 6:12])
+    net = model.net
+
+    def spy(c: torch.Tensor, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        seen.append(t.clone())
+        return net(c, x, t)
+
+    loss = model.loss(spy, model.normalized_cond(cond), model.normalized_target(cond, cond[..., 6:12]), gen)
+    assert torch.isfinite(loss) and torch.equal(seen[0][:2], torch.tensor([29, 29]))
+
+
+def test_bad_top_step_fraction_is_named() -> None:
+    with pytest.raises(ModelInputError, match="top_step_fraction must be in \\[0, 1\\], got 1.5"):
+        DCM(net=dict(TINY_NET), top_step_fraction=1.5)

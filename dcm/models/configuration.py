@@ -148,9 +148,15 @@ class DCMConfig(ForceModelConfig):
     task_loss: str = "of_mean"
     # how the noisy force enters the net: unit (x_t, the paper's) | signal (x_t * sqrt(alpha_bar_t))
     input_scaling: str = "unit"
+    # share of each training batch drawn at the pure-noise step T-1, the rest uniform over 0..T-1 (0: the
+    # paper's uniform draw, 1/T of the batch there). The ranking is made at that step: one DDIM step ranks
+    # as the whole chain does, and a net trained only there is the single-pass baseline.
+    top_step_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if not 0.0 <= float(self.top_step_fraction) <= 1.0:
+            raise ModelInputError(f"top_step_fraction must be in [0, 1], got {self.top_step_fraction}")
         if not 1 <= int(self.diffusion_steps) <= MAX_DIFFUSION_STEPS:
             raise ModelInputError(f"diffusion_steps must be in 1..{MAX_DIFFUSION_STEPS}, got {self.diffusion_steps}")
         if isinstance(self.schedule, str):

@@ -361,7 +361,8 @@ class DCM(ForceModel):
     def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
              generator: torch.Generator | None = None) -> torch.Tensor:
         net_in = diffusion.scale_noisy_input(net, self.train_scheduler, self.cfg.input_scaling)
-        return diffusion.diffusion_loss(net_in, cond_n, target_n, self.train_scheduler, generator=generator)
+        return diffusion.diffusion_loss(net_in, cond_n, target_n, self.train_scheduler, generator=generator,
+                                        top_step_fraction=self.cfg.top_step_fraction)
 
     def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
                           generator: torch.Generator | None = None) -> torch.Tensor:

@@ -225,19 +225,25 @@ def add_noise(scheduler: Scheduler, x0: torch.Tensor, noise: torch.Tensor, times
     return ab.sqrt() * x0 + (1.0 - ab).sqrt() * noise
 
 
-def sample_timesteps(scheduler: Scheduler, batch: int, device: torch.device | str, generator=None) -> torch.Tensor:
-    """Uniform training timesteps in 0..T-1, shape (batch,), long."""
+def sample_timesteps(scheduler: Scheduler, batch: int, device: torch.device | str, generator=None,
+                     top_step_fraction: float = 0.0) -> torch.Tensor:
+    """Training timesteps in 0..T-1, shape (batch,), long: uniform, except that the first
+    round(top_step_fraction * batch) rows are set to the pure-noise step T-1 (no extra random draw, so
+    0 gives the uniform draw unchanged; the loader has already shuffled the rows)."""
     T = scheduler.config.num_train_timesteps
     gen_device = device if generator is None else generator.device
-    return torch.randint(0, T, (batch,), generator=generator, device=gen_device).to(device)
+    t = torch.randint(0, T, (batch,), generator=generator, device=gen_device).to(device)
+    t[: round(top_step_fraction * batch)] = T - 1
+    return t
 
 
 def diffusion_loss(
-    net: ScoreNet, cond: torch.Tensor, x0: torch.Tensor, scheduler: Scheduler, generator=None, reduction: str = "mean"
+    net: ScoreNet, cond: torch.Tensor, x0: torch.Tensor, scheduler: Scheduler, generator=None, reduction: str = "mean",
+    top_step_fraction: float = 0.0,
 ) -> torch.Tensor:
     """MSE between the net's output and its target (noise, x0 or v, per the scheduler's prediction type)
-    at a uniform random t."""
-    t = sample_timesteps(scheduler, x0.shape[0], x0.device, generator)
+    at a random t (``sample_timesteps``)."""
+    t = sample_timesteps(scheduler, x0.shape[0], x0.device, generator, top_step_fraction)
     noise = randn_tensor(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
     output = net(cond, add_noise(scheduler, x0, noise, t), t)
     return torch.nn.functional.mse_loss(output, training_target(scheduler, x0, noise, t), reduction=reduction)
