@@ -150,7 +150,7 @@ class DCMConfig(ForceModelConfig):
     input_scaling: str = "unit"
     # share of each training batch drawn at the pure-noise step T-1, the rest uniform over 0..T-1 (0: the
     # paper's uniform draw, 1/T of the batch there). With input_scaling=signal the net sees about zeros at
-    # that step and regresses the force as the single-pass baseline does (README: 0.5 measured, no gain).
+    # that step and regresses the force as the single-pass baseline does (docs/results.md: 0.5 measured, no gain).
     top_step_fraction: float = 0.0
 
     def __post_init__(self) -> None:

@@ -115,7 +115,7 @@ class PandaEmbodiment:
     apparent_mass = (10.0, 10.0, 10.0, 2.0, 0.9, 0.2)
     # No ``attractor_inertia_kg``: the rollout attractor leaves out Λ ẍ_demo, as a controller that does not
     # know the arm's inertia. With it (10 kg) the arm tracks the demo at any stiffness: L_task(100 N/m) /
-    # L_task(2,500 N/m) falls to 1.1-1.2 on sim_contact's valid spirals, no trade-off left to tune (README).
+    # L_task(2,500 N/m) falls to 1.1-1.2 on sim_contact's valid spirals, no trade-off left to tune (docs/results.md).
 
     def __init__(
         self,
