@@ -88,8 +88,9 @@ def study_table(stats: Mapping[str, Any], robot_trials: Mapping[str, int], refer
         lines += ["", f"What stiffness does to this skill, over the {landscape['n_trials']} robot-based trials of all "
                   f"seeds: L_task 10 / 50 / 90 % = {_num(landscape['q10'], 3)} / {_num(landscape['median'], 3)} / "
                   f"{_num(landscape['q90'], 3)} N (q90 / q10 = {_num(landscape['spread_q90_q10'], 3)}), Spearman "
-                  f"rho(L_task, mean K) = {_num(landscape['spearman_mean_K'], 2)}. A narrow spread leaves the front "
-                  "to L_comp, which every tuner computes exactly, so better ranking of L_task can gain little."]
+                  f"rho(L_task, mean K) = {_num(landscape['spearman_mean_K'], 2)}. The narrower this spread, the more "
+                  "the front is set by L_comp, which every tuner computes exactly, and the less a better ranking of "
+                  "L_task can gain."]
     return "\n".join(lines) + "\n"
 
 
