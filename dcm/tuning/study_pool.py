@@ -1,0 +1,159 @@
+"""Pool tuning studies of one skill that differ only in the trained predictors: one study per training seed.
+
+    python -m dcm.tuning.study_pool seed0=outputs/study/<a> seed1=outputs/study/<b> seed2=outputs/study/<c>
+        [--subject dcm] [--out pool.md]
+
+One study (``python -m dcm.tuning.study``) compares tuners on ONE pair of checkpoints, so a DCM ahead of the
+baseline there may be that checkpoint's luck. Whether the method is ahead needs the study repeated with
+predictors trained from other seeds. This command takes such studies, keeps the tuning seeds they share, and
+reports per training seed the median I_H of every tuner and the subject's paired test, then the subject
+against each control over all (training seed, tuning seed) pairs. That pooled test holds the trained
+checkpoints fixed; the training seeds themselves are few, so the per-seed rows say how far the result
+carries over to a new training run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from dcm.tuning.study_report import label
+from dcm.tuning.study_stats import paired_test
+
+
+def load_study(folder: Path) -> dict:
+    """A finished study's ``study.json``; a clear error when the folder holds none."""
+    path = Path(folder) / "study.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no study.json (is {folder} a finished `python -m dcm.tuning.study` run?)")
+    return json.loads(path.read_text())
+
+
+def _same_reference(name: str, study: Mapping, first_name: str, first: Mapping) -> None:
+    """Studies of one skill share the reference point (a rollout at the demo's stiffness); others are refused."""
+    ref, ref0 = study["reference_point"], first["reference_point"]
+    for key in ("L_task_N", "L_comp_kNpm"):
+        if not math.isclose(ref[key], ref0[key], rel_tol=1e-9):
+            raise ValueError(f"{name}: reference point {key}={ref[key]:.6g} differs from {first_name}'s "
+                             f"{ref0[key]:.6g}; pool studies of one skill (same demo, simulator and stiffness space)")
+
+
+def pool(studies: Mapping[str, Mapping], subject: str = "dcm", alpha: float = 0.05) -> dict:
+    """Per study and pooled: medians of I_H over the shared tuning seeds and the subject's paired tests.
+
+    ``studies`` maps a label (e.g. the training seed) to a loaded ``study.json``. Tuners missing from any study
+    are left out; the subject must be in all of them.
+    """
+    if len(studies) < 1:
+        raise ValueError("study_pool: give at least one study")
+    names = list(studies)
+    for name in names[1:]:
+        _same_reference(name, studies[name], names[0], studies[names[0]])
+    seeds = sorted(set.intersection(*(set(s["seeds"]) for s in studies.values())))
+    if not seeds:
+        raise ValueError("study_pool: the studies share no tuning seed (" +
+                         "; ".join(f"{n}: {studies[n]['seeds']}" for n in names) + ")")
+    tuners = [t for t in studies[names[0]]["tuners"] if all(t in s["tuners"] for s in studies.values())]
+    if subject not in tuners:
+        raise ValueError(f"study_pool: the subject tuner {subject!r} is not in every study (shared tuners: {tuners})")
+
+    def values(study: Mapping, tuner: str) -> list[float]:
+        by_seed = dict(zip(study["seeds"], study["hypervolume"][tuner]))
+        return [float(by_seed[s]) if by_seed[s] is not None else math.nan for s in seeds]
+
+    per_study = {}
+    for name, study in studies.items():
+        hv = {t: values(study, t) for t in tuners}
+        per_study[name] = {"median": {t: float(np.nanmedian(v)) for t, v in hv.items()},
+                           "tests": {t: paired_test(hv[subject], v) for t, v in hv.items() if t != subject}}
+    pooled = {"median": {}, "tests": {}, "studies_ahead": {}}
+    for t in tuners:
+        pooled["median"][t] = float(np.nanmedian([x for s in studies.values() for x in values(s, t)]))
+        if t == subject:
+            continue
+        test = paired_test([x for s in studies.values() for x in values(s, subject)],
+                           [x for s in studies.values() for x in values(s, t)])
+        test["significant"] = test["p"] is not None and test["p"] < alpha
+        pooled["tests"][t] = test
+        pooled["studies_ahead"][t] = sum(per_study[n]["median"][subject] > per_study[n]["median"][t] for n in names)
+    return {"subject": subject, "alpha": alpha, "seeds": seeds, "tuners": tuners, "studies": names,
+            "per_study": per_study, "pooled": pooled}
+
+
+def _p(test: Mapping) -> str:
+    return "—" if test["p"] is None else f"{test['p']:.2g}"
+
+
+def pool_table(report: Mapping) -> str:
+    """Markdown: one row per study (median I_H per tuner; subject better/worse and p against each control),
+    then the pooled row."""
+    subject, tuners = report["subject"], report["tuners"]
+    controls = [t for t in tuners if t != subject]
+    n_seeds = len(report["seeds"])
+    lines = [
+        f"Median I_H over the {n_seeds} tuning seeds the studies share ({report['seeds'][0]}–{report['seeds'][-1]}); "
+        f"in brackets {label(subject)} better / worse of the seeds and the two-sided Wilcoxon p, paired by seed. "
+        f"The pooled row pairs every (study, tuning seed); its last line counts the studies whose "
+        f"{label(subject)} median is above the control's.",
+        "",
+        "| study | " + " | ".join(label(t) for t in tuners) + " |",
+        "|---|" + "---|" * len(tuners),
+    ]
+
+    def row(name: str, medians: Mapping, tests: Mapping) -> str:
+        cells = [f"{medians[subject]:.3f}"]
+        for t in controls:
+            test = tests[t]
+            cells.append(f"{medians[t]:.3f} ({test['wins']} / {test['losses']}, p = {_p(test)})")
+        return f"| {name} | " + " | ".join(cells) + " |"
+
+    for name in report["studies"]:
+        study = report["per_study"][name]
+        lines.append(row(name, study["median"], study["tests"]))
+    pooled = report["pooled"]
+    lines.append(row(f"**pooled, {len(report['studies'])} × {n_seeds}**", pooled["median"], pooled["tests"]))
+    lines.append(f"| {label(subject)} median above, studies | – | "
+                 + " | ".join(f"{pooled['studies_ahead'][t]} of {len(report['studies'])}" for t in controls) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _parse_pairs(items: Sequence[str]) -> dict[str, Path]:
+    studies = {}
+    for item in items:
+        name, sep, folder = item.partition("=")
+        if not sep or not name or not folder:
+            raise ValueError(f"{item!r}: give each study as LABEL=FOLDER (e.g. seed0=outputs/study/<run>)")
+        if name in studies:
+            raise ValueError(f"{item!r}: label {name!r} given twice")
+        studies[name] = Path(folder)
+    return studies
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("studies", nargs="+", help="LABEL=FOLDER of a finished study, one per training seed")
+    parser.add_argument("--subject", default="dcm", help="the tuner tested against every other (default dcm)")
+    parser.add_argument("--alpha", type=float, default=0.05)
+    parser.add_argument("--out", type=Path, default=None, help="write the table here (and the numbers beside it as .json)")
+    args = parser.parse_args(argv)
+    try:
+        folders = _parse_pairs(args.studies)
+        report = pool({name: load_study(folder) for name, folder in folders.items()}, args.subject, args.alpha)
+    except (ValueError, OSError) as err:
+        raise SystemExit(f"error: {err}") from None
+    table = pool_table(report)
+    print(table)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(table)
+        report["folders"] = {name: str(folder) for name, folder in folders.items()}
+        args.out.with_suffix(".json").write_text(json.dumps(report, indent=1))
+
+
+if __name__ == "__main__":
+    main()
