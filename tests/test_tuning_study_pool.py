@@ -22,14 +22,14 @@ def test_pool_keeps_shared_seeds_and_tuners_and_counts_studies_ahead():
     report = pool({"s0": first, "s1": second})
     assert report["seeds"] == [0, 1, 2]                      # seed 3 is only in the first study
     assert report["tuners"] == ["dcm", "baseline"]           # the prior is only in the first study
-    assert report["per_study"]["s0"]["median"]["dcm"] == pytest.approx(0.6)
+    assert report["per_study"]["s0"]["tuners"]["dcm"]["median"] == pytest.approx(0.6)
     assert report["per_study"]["s0"]["tests"]["baseline"]["wins"] == 3
     assert report["per_study"]["s1"]["tests"]["baseline"]["losses"] == 3
     pooled = report["pooled"]
     assert pooled["tests"]["baseline"]["n_pairs"] == 6
     assert (pooled["tests"]["baseline"]["wins"], pooled["tests"]["baseline"]["losses"]) == (3, 3)
     assert pooled["studies_ahead"]["baseline"] == 1
-    assert pooled["median"]["dcm"] == pytest.approx(0.45)
+    assert pooled["tuners"]["dcm"]["median"] == pytest.approx(0.45)
 
 
 def test_pool_refuses_another_skill_and_a_missing_subject():

@@ -20,10 +20,8 @@ import math
 from pathlib import Path
 from typing import Mapping, Sequence
 
-import numpy as np
-
 from dcm.tuning.study_report import label
-from dcm.tuning.study_stats import paired_test
+from dcm.tuning.study_stats import aggregate
 
 
 def load_study(folder: Path) -> dict:
@@ -44,12 +42,13 @@ def _same_reference(name: str, study: Mapping, first_name: str, first: Mapping) 
 
 
 def pool(studies: Mapping[str, Mapping], subject: str = "dcm", alpha: float = 0.05) -> dict:
-    """Per study and pooled: medians of I_H over the shared tuning seeds and the subject's paired tests.
+    """Per study and pooled: ``study_stats.aggregate`` of I_H over the shared tuning seeds (summaries per
+    tuner, the subject's paired tests), and per control the number of studies whose subject median is above.
 
     ``studies`` maps a label (e.g. the training seed) to a loaded ``study.json``. Tuners missing from any study
     are left out; the subject must be in all of them.
     """
-    if len(studies) < 1:
+    if not studies:
         raise ValueError("study_pool: give at least one study")
     names = list(studies)
     for name in names[1:]:
@@ -62,25 +61,16 @@ def pool(studies: Mapping[str, Mapping], subject: str = "dcm", alpha: float = 0.
     if subject not in tuners:
         raise ValueError(f"study_pool: the subject tuner {subject!r} is not in every study (shared tuners: {tuners})")
 
-    def values(study: Mapping, tuner: str) -> list[float]:
+    def shared_seeds(study: Mapping, tuner: str) -> list[float]:
         by_seed = dict(zip(study["seeds"], study["hypervolume"][tuner]))
-        return [float(by_seed[s]) if by_seed[s] is not None else math.nan for s in seeds]
+        return [math.nan if by_seed[s] is None else float(by_seed[s]) for s in seeds]
 
-    per_study = {}
-    for name, study in studies.items():
-        hv = {t: values(study, t) for t in tuners}
-        per_study[name] = {"median": {t: float(np.nanmedian(v)) for t, v in hv.items()},
-                           "tests": {t: paired_test(hv[subject], v) for t, v in hv.items() if t != subject}}
-    pooled = {"median": {}, "tests": {}, "studies_ahead": {}}
-    for t in tuners:
-        pooled["median"][t] = float(np.nanmedian([x for s in studies.values() for x in values(s, t)]))
-        if t == subject:
-            continue
-        test = paired_test([x for s in studies.values() for x in values(s, subject)],
-                           [x for s in studies.values() for x in values(s, t)])
-        test["significant"] = test["p"] is not None and test["p"] < alpha
-        pooled["tests"][t] = test
-        pooled["studies_ahead"][t] = sum(per_study[n]["median"][subject] > per_study[n]["median"][t] for n in names)
+    hv = {name: {t: shared_seeds(study, t) for t in tuners} for name, study in studies.items()}
+    per_study = {name: aggregate(hv[name], subject, alpha) for name in names}
+    pooled = aggregate({t: [x for name in names for x in hv[name][t]] for t in tuners}, subject, alpha)
+    pooled["studies_ahead"] = {
+        t: sum(per_study[n]["tuners"][subject]["median"] > per_study[n]["tuners"][t]["median"] for n in names)
+        for t in tuners if t != subject}
     return {"subject": subject, "alpha": alpha, "seeds": seeds, "tuners": tuners, "studies": names,
             "per_study": per_study, "pooled": pooled}
 
@@ -105,7 +95,8 @@ def pool_table(report: Mapping) -> str:
         "|---|" + "---|" * len(tuners),
     ]
 
-    def row(name: str, medians: Mapping, tests: Mapping) -> str:
+    def row(name: str, stats: Mapping) -> str:
+        medians, tests = {t: stats["tuners"][t]["median"] for t in tuners}, stats["tests"]
         cells = [f"{medians[subject]:.3f}"]
         for t in controls:
             test = tests[t]
@@ -113,10 +104,9 @@ def pool_table(report: Mapping) -> str:
         return f"| {name} | " + " | ".join(cells) + " |"
 
     for name in report["studies"]:
-        study = report["per_study"][name]
-        lines.append(row(name, study["median"], study["tests"]))
+        lines.append(row(name, report["per_study"][name]))
     pooled = report["pooled"]
-    lines.append(row(f"**pooled, {len(report['studies'])} × {n_seeds}**", pooled["median"], pooled["tests"]))
+    lines.append(row(f"**pooled, {len(report['studies'])} × {n_seeds}**", pooled))
     lines.append(f"| {label(subject)} median above, studies | – | "
                  + " | ".join(f"{pooled['studies_ahead'][t]} of {len(report['studies'])}" for t in controls) + " |")
     return "\n".join(lines) + "\n"
