@@ -18,6 +18,7 @@ from dcm.tuning.study import run_study
 from dcm.tuning.study_config import StudyConfigError
 from dcm.tuning.study_controls import prior_levels
 from dcm.tuning.study_stats import aggregate, landscape, paired_test
+from dcm.tuning.trial_ranking import main as ranking_main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -132,6 +133,16 @@ def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_chec
     changed = _study_config(tiny_checkpoint, reference, demo, out, "robot_free.n_trials=10")
     with pytest.raises(StudyConfigError, match=r"other settings: robot_free.n_trials: 8 -> 10"):
         run_study(changed, out)
+
+    # The finished study's robot-based trials score its predictors (dcm.tuning.trial_ranking).
+    ranking_main([str(out), f"DCM={tiny_checkpoint}", f"ridge={reference}", "--tuned", f"DCM={out}:dcm",
+                  f"ridge={out}:reference", "--out", str(tmp_path / "ranking.md")])
+    ranking = json.loads((tmp_path / "ranking.json").read_text())
+    assert ranking["seeds"] == [0, 1] and 2 <= ranking["n_trials"] <= 12  # distinct finite trials of both seeds
+    assert ranking["calibration"]["simulator"]["R"] == pytest.approx(1.0)
+    assert ranking["tuned"]["DCM"]["I_H"] == pytest.approx(float(np.median(report["hypervolume"]["dcm"])))
+    assert np.isfinite(ranking["tuned"]["DCM"]["optimism_N"])  # the study kept its runs
+    assert set(ranking["scores"]) == {"DCM", "ridge"} and "| ridge |" in (tmp_path / "ranking.md").read_text()
 
 
 def test_with_validation_rollouts_every_front_is_judged_by_its_expected_loss(tiny_checkpoint: Path,

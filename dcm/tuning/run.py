@@ -329,10 +329,26 @@ def record_skill(cfg: Any, checked: Any) -> tuple[Any, Any, Skill]:
     return simulator, demo, Skill(demo.x_demo, demo.force_demo, boundaries, cfg.stiffness.rot_Nmprad)
 
 
+def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
+    """The predictor of ``cfg.ckpt`` as the robot-free search uses it: checked against the skill (warning when
+    its demo is recorded otherwise than the predictor's training demos), with ``robot_free``'s sampler, sampling
+    steps and task loss."""
+    from dcm.models.predict import load_model
+
+    model = load_model(cfg.ckpt, map_location=device)
+    check_predictor(model, cfg)
+    if (mismatch := recording_mismatch(cfg.ckpt, spec)) is not None:
+        warnings.warn(mismatch, DemoRecordingWarning, stacklevel=3)
+    use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
+    if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
+        model.set_task_loss(cfg.robot_free.task_loss)
+    return model
+
+
 def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds."""
     from dcm.cli import resolve_device
-    from dcm.models.predict import describe, load_model
+    from dcm.models.predict import describe
 
     checked = check_config(cfg)
     spec, domain, space, reference_cfg = checked.spec, checked.domain, checked.space, checked.reference
@@ -342,13 +358,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
         import torch
 
         torch.set_num_threads(int(cfg.torch_threads))
-    model = load_model(cfg.ckpt, map_location=device)
-    check_predictor(model, cfg)
-    if (mismatch := recording_mismatch(cfg.ckpt, spec)) is not None:
-        warnings.warn(mismatch, DemoRecordingWarning, stacklevel=2)
-    use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
-    if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
-        model.set_task_loss(cfg.robot_free.task_loss)
+    model = load_predictor(cfg, spec, device)
 
     prints = fingerprints(cfg, spec, domain, model, device)
     notes = {"predictor": str(cfg.ckpt), "model": type(model).__name__}
@@ -471,5 +481,5 @@ def _plot_best(out_dir: Path, objective: ModelObjective, params: np.ndarray, val
     plot_overview(out_dir / "overview.png", pareto, *forces, f"{demo.spec.name}: {title}")
 
 
-__all__ = ["TrialLog", "TuneConfigError", "check_config", "check_predictor", "fingerprints", "pick_spread", "tune",
-           "use_sampler"]
+__all__ = ["TrialLog", "TuneConfigError", "check_config", "check_predictor", "fingerprints", "load_predictor",
+           "pick_spread", "tune", "use_sampler"]
