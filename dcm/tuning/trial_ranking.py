@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -191,7 +192,8 @@ def ranking_table(report: Mapping[str, Any]) -> str:
     """Markdown: one row per predictor, then the calibration rows and the agreement with tuning."""
     tuned = report["tuned"]
     fmt = lambda v: "–" if v is None or not math.isfinite(v) else f"{v:.3f}"  # noqa: E731
-    lines = [f"{report['n_trials']} distinct robot-based trials of `{report['study']}` (tuning seeds "
+    lines = [f"Command: `{report['command']}`", "",
+             f"{report['n_trials']} distinct robot-based trials of `{report['study']}` (tuning seeds "
              f"{report['seeds'][0]}–{report['seeds'][-1]}); simulated L_task {report['task_range'][0]:.3f}–"
              f"{report['task_range'][1]:.3f} N. front_hv: I_H of the {report['n_validate']} picks from the "
              "predicted front ÷ I_H of the simulated front.", "",
@@ -243,7 +245,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise SystemExit(f"error: {err}") from None
     reference, n_validate = np.asarray(settings["reference"]), settings["n_validate"]
     scores = {name: ranking_scores(p, objectives, reference, n_validate) for name, p in predicted.items()}
-    report = {"study": str(args.study), "seeds": seeds, "n_trials": len(params), "n_validate": n_validate,
+    command = " ".join(["python -m dcm.tuning.trial_ranking", *(sys.argv[1:] if argv is None else argv)])
+    report = {"command": command, "study": str(args.study), "seeds": seeds, "n_trials": len(params), "n_validate": n_validate,
               "reference_point": settings["reference"], "predictors": predictors,
               "task_range": [float(objectives[:, 0].min()), float(objectives[:, 0].max())], "scores": scores,
               "calibration": calibration_rows(objectives, reference, n_validate), "tuned": tuned,
