@@ -161,7 +161,8 @@ def _optimism(folder: Path, tuner: str, seeds: Sequence[int]) -> float:
         if not path.is_file():
             return math.nan
         for pick in json.loads(path.read_text())["robot_free"]["solutions"]:
-            gaps.append(pick["predicted"]["L_task_N"] - (math.nan if pick["validated"]["L_task_N"] is None else pick["validated"]["L_task_N"]))
+            simulated = pick["validated"]["L_task_N"]  # None for a failed rollout
+            gaps.append(pick["predicted"]["L_task_N"] - (math.nan if simulated is None else simulated))
     return float(np.nanmedian(gaps)) if gaps else math.nan
 
 
@@ -246,8 +247,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     reference, n_validate = np.asarray(settings["reference"]), settings["n_validate"]
     scores = {name: ranking_scores(p, objectives, reference, n_validate) for name, p in predicted.items()}
     command = " ".join(["python -m dcm.tuning.trial_ranking", *(sys.argv[1:] if argv is None else argv)])
-    report = {"command": command, "study": str(args.study), "seeds": seeds, "n_trials": len(params), "n_validate": n_validate,
-              "reference_point": settings["reference"], "predictors": predictors,
+    report = {"command": command, "study": str(args.study), "seeds": seeds, "n_trials": len(params),
+              "n_validate": n_validate, "reference_point": settings["reference"], "predictors": predictors,
               "task_range": [float(objectives[:, 0].min()), float(objectives[:, 0].max())], "scores": scores,
               "calibration": calibration_rows(objectives, reference, n_validate), "tuned": tuned,
               "agreement": score_tuning_agreement(scores, {n: t["I_H"] for n, t in tuned.items()})}
