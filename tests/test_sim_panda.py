@@ -139,6 +139,22 @@ def test_simulator_rollouts_are_deterministic_and_reproduce_a_slow_demo(flat_sim
     assert first.L_task < 0.15 * np.abs(demo.force_demo[:, 2]).max()
 
 
+def test_rollouts_do_not_depend_on_the_blas_thread_count(flat_sim: Simulator) -> None:
+    """The same rollout under 1 and 2 BLAS threads gives the same bytes (OpenBLAS otherwise splits the
+    controller's products by the thread count, moving the last bits)."""
+    from threadpoolctl import threadpool_limits
+
+    spec = DemoSpec(family="wavelike", bowl=FLAT, duration_s=2.0, approach_s=0.4)
+    demo = flat_sim.record_demo(spec)
+    stiffness = flat_sim.constant_stiffness(demo, 600.0)
+    runs = []
+    for threads in (1, 2):
+        with threadpool_limits(limits=threads, user_api="blas"):
+            runs.append(flat_sim.rollout(demo, stiffness))
+    np.testing.assert_array_equal(runs[0].force_obs, runs[1].force_obs)
+    assert runs[0].L_task == runs[1].L_task
+
+
 def test_bad_inputs_are_named(panda: PandaEmbodiment) -> None:
     with pytest.raises(PandaError, match="attractor"):
         panda.step(np.array([0.0, 0.0, np.nan, 0, 0, 0]), STIFF)

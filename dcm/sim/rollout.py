@@ -28,6 +28,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from dcm.control import (
     StiffnessLimits,
@@ -338,7 +339,24 @@ class Simulator:
         stiffness: np.ndarray,
         rng: np.random.Generator,
     ) -> _Execution:
-        """Reset at ``start_pose`` and run the commands; applies latency and sensing; detects divergence."""
+        """Reset at ``start_pose`` and run the commands; applies latency and sensing; detects divergence.
+
+        The controllers' small matrix products run on one BLAS thread: OpenBLAS splits them otherwise by the
+        thread count (``OMP_NUM_THREADS``), which moved a rollout's L_task by up to 4e-13 N between 1 and 2
+        threads, so the same inputs gave other bytes in another shell.
+        """
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._run_commands(emb, bowl, start_pose, attractor, stiffness, rng)
+
+    def _run_commands(
+        self,
+        emb: Embodiment,
+        bowl: BowlSpec,
+        start_pose: np.ndarray,
+        attractor: np.ndarray,
+        stiffness: np.ndarray,
+        rng: np.random.Generator,
+    ) -> _Execution:
         horizon = len(attractor)
         if not np.all(np.isfinite(attractor)):
             t, c = np.argwhere(~np.isfinite(attractor))[0]
