@@ -330,6 +330,10 @@ class Simulator:
             crc = zlib.crc32(part if isinstance(part, bytes) else str(part).encode(), crc)
         return np.random.default_rng([self.seed, crc])
 
+    # The controllers' small matrix products run on one BLAS thread: OpenBLAS otherwise splits them by the thread
+    # count (OMP_NUM_THREADS), which moved a rollout's L_task by up to 4e-13 N between 1 and 2 threads, so the
+    # same inputs gave other bytes in another shell.
+    @threadpool_limits.wrap(limits=1, user_api="blas")
     def _execute(
         self,
         emb: Embodiment,
@@ -339,24 +343,7 @@ class Simulator:
         stiffness: np.ndarray,
         rng: np.random.Generator,
     ) -> _Execution:
-        """Reset at ``start_pose`` and run the commands; applies latency and sensing; detects divergence.
-
-        The controllers' small matrix products run on one BLAS thread: OpenBLAS splits them otherwise by the
-        thread count (``OMP_NUM_THREADS``), which moved a rollout's L_task by up to 4e-13 N between 1 and 2
-        threads, so the same inputs gave other bytes in another shell.
-        """
-        with threadpool_limits(limits=1, user_api="blas"):
-            return self._run_commands(emb, bowl, start_pose, attractor, stiffness, rng)
-
-    def _run_commands(
-        self,
-        emb: Embodiment,
-        bowl: BowlSpec,
-        start_pose: np.ndarray,
-        attractor: np.ndarray,
-        stiffness: np.ndarray,
-        rng: np.random.Generator,
-    ) -> _Execution:
+        """Reset at ``start_pose`` and run the commands; applies latency and sensing; detects divergence."""
         horizon = len(attractor)
         if not np.all(np.isfinite(attractor)):
             t, c = np.argwhere(~np.isfinite(attractor))[0]
