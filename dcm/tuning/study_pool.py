@@ -41,6 +41,13 @@ def _same_reference(name: str, study: Mapping, first_name: str, first: Mapping) 
                              f"{ref0[key]:.6g}; pool studies of one skill (same demo, simulator and stiffness space)")
 
 
+def seed_values(study: Mapping, tuner: str, seeds: Sequence[int]) -> list[float]:
+    """I_H of ``tuner`` in a loaded ``study.json`` at each of ``seeds`` (all must be in the study); NaN for a
+    failed run."""
+    by_seed = dict(zip(study["seeds"], study["hypervolume"][tuner]))
+    return [math.nan if by_seed[s] is None else float(by_seed[s]) for s in seeds]
+
+
 def pool(studies: Mapping[str, Mapping], subject: str = "dcm", alpha: float = 0.05) -> dict:
     """Per study and pooled: ``study_stats.aggregate`` of I_H over the shared tuning seeds (summaries per
     tuner, the subject's paired tests), and per control the number of studies whose subject median is above.
@@ -61,11 +68,7 @@ def pool(studies: Mapping[str, Mapping], subject: str = "dcm", alpha: float = 0.
     if subject not in tuners:
         raise ValueError(f"study_pool: the subject tuner {subject!r} is not in every study (shared tuners: {tuners})")
 
-    def shared_seeds(study: Mapping, tuner: str) -> list[float]:
-        by_seed = dict(zip(study["seeds"], study["hypervolume"][tuner]))
-        return [math.nan if by_seed[s] is None else float(by_seed[s]) for s in seeds]
-
-    hv = {name: {t: shared_seeds(study, t) for t in tuners} for name, study in studies.items()}
+    hv = {name: {t: seed_values(study, t, seeds) for t in tuners} for name, study in studies.items()}
     per_study = {name: aggregate(hv[name], subject, alpha) for name in names}
     pooled = aggregate({t: [x for name in names for x in hv[name][t]] for t in tuners}, subject, alpha)
     pooled["studies_ahead"] = {
@@ -112,16 +115,18 @@ def pool_table(report: Mapping) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _parse_pairs(items: Sequence[str]) -> dict[str, Path]:
-    studies = {}
+def parse_labelled(items: Sequence[str], form: str) -> dict[str, str]:
+    """``LABEL=VALUE`` command-line items -> {label: value}; ``form`` says what an item should look like in the
+    error for a malformed one. A label given twice is refused."""
+    parsed: dict[str, str] = {}
     for item in items:
-        name, sep, folder = item.partition("=")
-        if not sep or not name or not folder:
-            raise ValueError(f"{item!r}: give each study as LABEL=FOLDER (e.g. seed0=outputs/study/<run>)")
-        if name in studies:
-            raise ValueError(f"{item!r}: label {name!r} given twice")
-        studies[name] = Path(folder)
-    return studies
+        label, sep, value = item.partition("=")
+        if not sep or not label or not value:
+            raise ValueError(f"{item!r}: give each {form}")
+        if label in parsed:
+            raise ValueError(f"{item!r}: label {label!r} given twice")
+        parsed[label] = value
+    return parsed
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -132,7 +137,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=None, help="write the table here (and the numbers beside it as .json)")
     args = parser.parse_args(argv)
     try:
-        folders = _parse_pairs(args.studies)
+        folders = {name: Path(folder) for name, folder in
+                   parse_labelled(args.studies, "study as LABEL=FOLDER (e.g. seed0=outputs/study/<run>)").items()}
         report = pool({name: load_study(folder) for name, folder in folders.items()}, args.subject, args.alpha)
     except (ValueError, OSError) as err:
         raise SystemExit(f"error: {err}") from None

@@ -109,7 +109,9 @@ def study_trials(study: Path) -> tuple[np.ndarray, np.ndarray, list[int]]:
 def _study_config(study: Path) -> Any:
     from omegaconf import OmegaConf
 
-    path = study / "study_config.json"
+    from dcm.tuning.study_config import STUDY_SETTINGS
+
+    path = study / STUDY_SETTINGS
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing; give the folder of a `python -m dcm.tuning.study` run")
     return OmegaConf.create(json.loads(path.read_text()))
@@ -169,7 +171,7 @@ def _optimism(folder: Path, tuner: str, seeds: Sequence[int]) -> float:
 def tuned_summary(items: Sequence[str], seeds: Sequence[int]) -> dict[str, dict[str, float]]:
     """``LABEL=STUDY:TUNER`` -> that tuner's median I_H in that study over ``seeds`` (all must be there) and
     its optimism (:func:`_optimism`)."""
-    from dcm.tuning.study_pool import load_study
+    from dcm.tuning.study_pool import load_study, seed_values
 
     summary = {}
     for item in items:
@@ -180,11 +182,10 @@ def tuned_summary(items: Sequence[str], seeds: Sequence[int]) -> dict[str, dict[
         study = load_study(Path(folder))
         if tuner not in study["tuners"]:
             raise ValueError(f"--tuned {item!r}: {folder} has no tuner {tuner!r} (it has {study['tuners']})")
-        by_seed = dict(zip(study["seeds"], study["hypervolume"][tuner]))
-        missing = [s for s in seeds if s not in by_seed]
+        missing = [s for s in seeds if s not in study["seeds"]]
         if missing:
             raise ValueError(f"--tuned {item!r}: {folder} lacks the tuning seeds {missing} of the trials")
-        summary[label] = {"I_H": float(np.nanmedian([np.nan if by_seed[s] is None else by_seed[s] for s in seeds])),
+        summary[label] = {"I_H": float(np.nanmedian(seed_values(study, tuner, seeds))),
                           "optimism_N": _optimism(Path(folder), tuner, seeds)}
     return summary
 
@@ -214,16 +215,12 @@ def ranking_table(report: Mapping[str, Any]) -> str:
 
 
 def _parse_predictors(items: Sequence[str]) -> dict[str, str]:
-    predictors: dict[str, str] = {}
-    for item in items:
-        label, sep, path = item.partition("=")
-        if not (sep and label and path):
-            raise ValueError(f"{item!r}: give each predictor as LABEL=CHECKPOINT_OR_REFERENCE_JSON")
-        if label in predictors:
-            raise ValueError(f"{item!r}: label {label!r} given twice")
+    from dcm.tuning.study_pool import parse_labelled
+
+    predictors = parse_labelled(items, "predictor as LABEL=CHECKPOINT_OR_REFERENCE_JSON")
+    for label, path in predictors.items():
         if not Path(path).is_file():
-            raise FileNotFoundError(f"{item!r}: {path}: no such file")
-        predictors[label] = path
+            raise FileNotFoundError(f"'{label}={path}': {path}: no such file")
     return predictors
 
 
