@@ -200,6 +200,19 @@ def test_diverse_contact_is_diverse_recorded_at_12_s_with_the_lead() -> None:
         assert c.spec == {**d.spec, "duration_s": 12.0, "lead": True}
 
 
+
+def test_diverse_contact_wide_keeps_diverse_contact_and_adds_unseen_train_bowls() -> None:
+    contact, wide = _plan("diverse_contact"), _plan("diverse_contact_wide")
+    assert wide[:len(contact)] == contact  # same demos, seeds and splits: judged on the same held-out skills
+    extra = wide[len(contact):]
+    assert {job.trial_splits for job in extra} == {("train",) * 20}
+    assert sum(job.n_trials for job in wide) == 4300
+    seeds = [job.spec["params"]["seed"] for job in extra if job.skill == "curve_wide"]
+    assert sorted(seeds) == list(range(40, 148))  # no curve of diverse_contact repeated
+    valid_bowls = {(j.spec["bowl"]["rim_radius_m"], j.spec["bowl"]["depth_m"]) for j in contact
+                   if "valid" in j.trial_splits}
+    assert not valid_bowls & {(j.spec["bowl"]["rim_radius_m"], j.spec["bowl"]["depth_m"]) for j in extra}
+
 def test_preset_axes_zip_and_enumerate_are_checked() -> None:
     from dcm.data.presets import PresetError, expand_skill
 
