@@ -18,7 +18,9 @@ from dcm.models.predict import load_model, predict_task_loss, trained_on
 MODELS = Path(__file__).resolve().parents[1] / "models"
 SHIPPED = ("dcm_sim.ckpt", "baseline_sim.ckpt", "dcm_realistic.ckpt", "stiffness_ridge_sim.json",
            "dcm_diverse.ckpt", "baseline_diverse.ckpt", "stiffness_ridge_diverse.json",
-           "dcm_diverse_contact.ckpt", "baseline_diverse_contact.ckpt", "stiffness_ridge_diverse_contact.json")
+           "dcm_diverse_contact.ckpt", "baseline_diverse_contact.ckpt", "stiffness_ridge_diverse_contact.json",
+           "dcm_diverse_contact_wide.ckpt", "baseline_diverse_contact_wide.ckpt",
+           "stiffness_ridge_diverse_contact_wide.json")
 
 
 def test_every_documented_predictor_is_shipped_and_the_card_matches_the_files() -> None:
