@@ -200,7 +200,6 @@ def test_diverse_contact_is_diverse_recorded_at_12_s_with_the_lead() -> None:
         assert c.spec == {**d.spec, "duration_s": 12.0, "lead": True}
 
 
-
 def test_diverse_contact_wide_keeps_diverse_contact_and_adds_unseen_train_bowls() -> None:
     contact, wide = _plan("diverse_contact"), _plan("diverse_contact_wide")
     assert wide[:len(contact)] == contact  # same demos, seeds and splits: judged on the same held-out skills
