@@ -208,9 +208,13 @@ def test_diverse_contact_wide_keeps_diverse_contact_and_adds_unseen_train_bowls(
     assert sum(job.n_trials for job in wide) == 4300
     seeds = [job.spec["params"]["seed"] for job in extra if job.skill == "curve_wide"]
     assert sorted(seeds) == list(range(40, 148))  # no curve of diverse_contact repeated
-    valid_bowls = {(j.spec["bowl"]["rim_radius_m"], j.spec["bowl"]["depth_m"]) for j in contact
-                   if "valid" in j.trial_splits}
-    assert not valid_bowls & {(j.spec["bowl"]["rim_radius_m"], j.spec["bowl"]["depth_m"]) for j in extra}
+
+    def bowl(job) -> tuple[float, float]:
+        return job.spec["bowl"]["rim_radius_m"], job.spec["bowl"]["depth_m"]
+
+    valid_bowls = {bowl(j) for j in contact if "valid" in j.trial_splits}
+    assert valid_bowls and not valid_bowls & {bowl(j) for j in extra}
+
 
 def test_preset_axes_zip_and_enumerate_are_checked() -> None:
     from dcm.data.presets import PresetError, expand_skill
