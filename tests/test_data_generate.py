@@ -216,6 +216,24 @@ def test_diverse_contact_wide_keeps_diverse_contact_and_adds_unseen_train_bowls(
     assert valid_bowls and not valid_bowls & {bowl(j) for j in extra}
 
 
+def test_diverse_contact_slow_extends_the_wide_preset_with_slow_train_curves() -> None:
+    wide, slow = _plan("diverse_contact_wide"), _plan("diverse_contact_slow")
+    assert slow[:len(wide)] == wide  # extra_skills merge across presets: the wide groups are not restated
+    extra = slow[len(wide):]
+    assert {job.skill for job in extra} == {"curve_slow"} and len(extra) == 108
+    assert {job.trial_splits for job in extra} == {("train",) * 20}
+    assert {tuple(job.spec["params"]["speed_mps"]) for job in extra} == {(0.01, 0.04)}
+    seeds = [job.spec["params"]["seed"] for job in wide + extra if job.skill.startswith("curve")]
+    assert len(seeds) == len(set(seeds))
+
+
+def test_extra_skills_must_be_a_mapping() -> None:
+    from dcm.data.presets import PresetError, plan_demos
+
+    with pytest.raises(PresetError, match=r"dataset.extra_skills must map a group name"):
+        plan_demos({"skills": [{"spec": {"family": "line"}}], "extra_skills": [{"spec": {"family": "line"}}]}, 0)
+
+
 def test_preset_axes_zip_and_enumerate_are_checked() -> None:
     from dcm.data.presets import PresetError, expand_skill
 

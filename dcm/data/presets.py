@@ -113,6 +113,8 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
     model is checked on unseen skills) or single trials of every skill (``valid_by: trial``; for presets
     with very few skills). ``only_skills`` keeps just the named skill groups (e.g. the train set alone);
     demo indices and seeds are those of the full plan, so the kept demos are identical to the full run's.
+    ``extra_skills`` (group name -> skill group) come after ``skills``: a mapping, unlike a list, merges
+    across Hydra defaults, so a preset extends another one's groups without restating them.
     """
     defaults = {"duration_s": dataset.get("duration_s", 8.0), "bowl": dict(dataset.get("bowl", {}))}
     demo_lead = dataset.get("demo_lead", False)
@@ -126,11 +128,14 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
         n = int(n_trials_override or waypoints.get("n_trials", 20))
         groups.append(("waypoints", str(waypoints.get("split", "train")), n, [spec]))
     else:
-        skills = dataset.get("skills") or []
+        skills = [(f"dataset.skills[{i}]", skill) for i, skill in enumerate(dataset.get("skills") or [])]
+        extra = dataset.get("extra_skills") or {}
+        if not isinstance(extra, Mapping):
+            raise PresetError(f"dataset.extra_skills must map a group name to a skill group, got {extra!r}")
+        skills += [(f"dataset.extra_skills.{key}", {"name": key, **skill}) for key, skill in extra.items()]
         if not skills:
             raise PresetError(f"dataset {dataset.get('name')!r} defines no skills")
-        for i, skill in enumerate(skills):
-            where = f"dataset.skills[{i}]"
+        for i, (where, skill) in enumerate(skills):
             name = str(skill.get("name", skill.get("spec", {}).get("family", f"skill{i}")))
             split = str(skill.get("split", "train"))
             if split not in ("train", "valid", "test", "trainval"):
