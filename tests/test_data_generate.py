@@ -232,6 +232,8 @@ def test_extra_skills_must_be_a_mapping() -> None:
 
     with pytest.raises(PresetError, match=r"dataset.extra_skills must map a group name"):
         plan_demos({"skills": [{"spec": {"family": "line"}}], "extra_skills": [{"spec": {"family": "line"}}]}, 0)
+    with pytest.raises(PresetError, match=r"dataset.extra_skills.more = 3 must be a skill group"):
+        plan_demos({"skills": [{"spec": {"family": "line"}}], "extra_skills": {"more": 3}}, 0)
 
 
 def test_preset_axes_zip_and_enumerate_are_checked() -> None:

@@ -132,7 +132,10 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
         extra = dataset.get("extra_skills") or {}
         if not isinstance(extra, Mapping):
             raise PresetError(f"dataset.extra_skills must map a group name to a skill group, got {extra!r}")
-        skills += [(f"dataset.extra_skills.{key}", {"name": key, **skill}) for key, skill in extra.items()]
+        for key, skill in extra.items():
+            if not isinstance(skill, Mapping):
+                raise PresetError(f"dataset.extra_skills.{key} = {skill!r} must be a skill group (a mapping)")
+            skills.append((f"dataset.extra_skills.{key}", {"name": key, **skill}))
         if not skills:
             raise PresetError(f"dataset {dataset.get('name')!r} defines no skills")
         for i, (where, skill) in enumerate(skills):
