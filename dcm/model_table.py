@@ -38,13 +38,17 @@ COLUMNS = (("force_rmse_N", "force RMSE [N]"), ("force_rmse_ratio_copy", "÷ cop
 
 
 def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overrides: Any) -> dict[str, Any]:
-    """``dcm.evaluate.evaluate`` of the run's checkpoint, cached in the run directory."""
+    """``dcm.evaluate.evaluate`` of the run's checkpoint, cached in the run directory.
+
+    The cache holds while it names the same checkpoint and is newer than it: a run still training rewrites
+    ``last.ckpt`` under the same path.
+    """
     from dcm.evaluate import evaluate
 
     name = f"eval_{dataset.stem}_{split}{'_' + tag if tag else ''}.json"
     path = run_dir / name
     ckpt = run_checkpoint(run_dir)
-    if path.is_file():
+    if path.is_file() and path.stat().st_mtime_ns >= ckpt.stat().st_mtime_ns:
         cached = json.loads(path.read_text())
         if cached.get("ckpt") == str(ckpt.resolve()) and REGRET_KEY in cached:
             return cached
@@ -152,7 +156,13 @@ def main(argv: list[str] | None = None) -> str:
         dirs = sorted(Path(p) for p in glob.glob(pattern) if Path(p).is_dir())
         if not dirs:
             parser.error(f"--runs {spec!r}: no run directory matches {pattern!r}")
-        runs[label] = dirs
+        finished = [d for d in dirs if (d / "summary.json").is_file()]  # train.py writes it when a run ends
+        if len(finished) < len(dirs):
+            print(f"--runs {spec!r}: skipped, still training or killed (no summary.json): "
+                  f"{', '.join(str(d) for d in dirs if d not in finished)}", file=sys.stderr)
+        if not finished:
+            parser.error(f"--runs {spec!r}: no finished run (with summary.json) matches {pattern!r}")
+        runs[label] = finished
     overrides = {k: v for k, v in (("sampler", args.sampler), ("sampling_steps", args.sampling_steps),
                                    ("n_samples", args.n_samples), ("task_loss", args.task_loss)) if v is not None}
     tag = "_".join(f"{k}{v}" for k, v in overrides.items())

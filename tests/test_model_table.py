@@ -1,9 +1,14 @@
 """The model comparison table: medians and ranges over seeds, references beside the models."""
 
+import json
+import os
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from dcm.model_study.stats import p_text
-from dcm.model_table import cell, significance, table
+from dcm.model_table import REGRET_KEY, cached_eval, cell, significance, table
 
 
 def test_cell_median_and_range() -> None:
@@ -39,3 +44,38 @@ def test_significance_compares_every_model_with_the_first() -> None:
     assert significance(rows, ["DCM"], ["valid"]) == ""  # one model: nothing to compare
     one_seed = {"DCM": {"valid": dcm[:1]}, "baseline": {"valid": base}}
     assert "– (n < 2 or no spread)" in significance(one_seed, ["DCM", "baseline"], ["valid"])
+
+
+def test_cached_eval_reevaluates_a_checkpoint_rewritten_under_the_same_path(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import dcm.evaluate
+
+    ckpt = tmp_path / "checkpoints" / "last.ckpt"
+    ckpt.parent.mkdir()
+    ckpt.write_bytes(b"epoch 1")
+    calls: list[Path] = []
+
+    def evaluate(path: Path, dataset: Path, split: str) -> dict:
+        calls.append(path)
+        return {"ckpt": str(Path(path).resolve()), REGRET_KEY: 0.0, "R_within": float(len(calls))}
+
+    monkeypatch.setattr(dcm.evaluate, "evaluate", evaluate)
+    dataset = tmp_path / "set.h5"
+    assert cached_eval(tmp_path, dataset, "valid")["R_within"] == 1.0
+    assert cached_eval(tmp_path, dataset, "valid")["R_within"] == 1.0 and len(calls) == 1  # cached
+    cache = tmp_path / "eval_set_valid.json"
+    assert json.loads(cache.read_text())["R_within"] == 1.0
+    later = cache.stat().st_mtime_ns + 1_000_000_000
+    ckpt.write_bytes(b"epoch 2")  # the run went on training
+    os.utime(ckpt, ns=(later, later))
+    assert cached_eval(tmp_path, dataset, "valid")["R_within"] == 2.0 and len(calls) == 2
+
+
+def test_runs_still_training_are_left_out_and_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from dcm.model_table import main
+
+    (tmp_path / "dcm_s0" / "checkpoints").mkdir(parents=True)  # no summary.json yet: the run is not over
+    with pytest.raises(SystemExit):
+        main(["--dataset", str(tmp_path / "set.h5"), "--runs", f"DCM={tmp_path / 'dcm_s*'}"])
+    err = capsys.readouterr().err
+    assert "no summary.json" in err and str(tmp_path / "dcm_s0") in err and "no finished run" in err
