@@ -54,3 +54,16 @@ def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_
         assert preset_recording(trained_on(MODELS / name)) == expected, name
     assert file_recording(tiny_dataset_path) == preset_recording("tiny")
     assert preset_recording("no_such_preset") is None
+
+
+@pytest.mark.parametrize("predictors", sorted({n.split("_", 1)[1].rsplit(".", 1)[0] for n in SHIPPED if n.startswith("dcm_")}))
+def test_make_study_tuning_records_the_skill_as_the_predictors_training_demos(predictors: str) -> None:
+    import shutil
+    import subprocess
+
+    if shutil.which("make") is None:
+        pytest.skip("make is not installed")
+    dry = subprocess.run(["make", "-n", "study-tuning", f"PREDICTORS={predictors}"], cwd=MODELS.parent,
+                         capture_output=True, text=True, check=True).stdout
+    recorded = "demo.duration_s=12.0 +demo.lead=true" in dry
+    assert recorded == (preset_recording(predictors) == Recording(12.0, True)), dry
