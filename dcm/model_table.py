@@ -27,7 +27,7 @@ import numpy as np
 
 from dcm.control.objectives import TASK_LOSSES
 from dcm.model_study.stats import ALPHA, p_text, welch_test
-from dcm.models.export import run_checkpoint
+from dcm.models.export import run_checkpoint, run_finished
 from dcm.models.metrics import REGRET_KEY, TOP_PICKS
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
@@ -156,10 +156,10 @@ def main(argv: list[str] | None = None) -> str:
         dirs = sorted(Path(p) for p in glob.glob(pattern) if Path(p).is_dir())
         if not dirs:
             parser.error(f"--runs {spec!r}: no run directory matches {pattern!r}")
-        finished = [d for d in dirs if (d / "summary.json").is_file()]  # train.py writes it when a run ends
-        if len(finished) < len(dirs):
-            print(f"--runs {spec!r}: skipped, still training or killed (no summary.json): "
-                  f"{', '.join(str(d) for d in dirs if d not in finished)}", file=sys.stderr)
+        finished = [d for d in dirs if run_finished(d)]
+        if unfinished := [str(d) for d in dirs if d not in finished]:
+            print(f"--runs {spec!r}: skipped, still training or killed (no summary.json): {', '.join(unfinished)}",
+                  file=sys.stderr)
         if not finished:
             parser.error(f"--runs {spec!r}: no finished run (with summary.json) matches {pattern!r}")
         runs[label] = finished

@@ -16,6 +16,8 @@ from typing import Any
 
 import yaml
 
+from dcm.models.export import run_finished
+
 # overrides that never define a setting: the seed (aggregated over), the experiment itself, and paths
 NOT_SETTINGS = ("seed", "experiment", "data.path", "init_from", "resume", "trainer.max_time")
 DEFAULT_METRICS = ("L_MSE", "force_rmse_N", "R_within", "R_pooled")
@@ -90,7 +92,7 @@ def read_run(path: Path) -> Run:
                if "/" not in k}
     seed = overrides.get("seed", (config or {}).get("seed", 0))
     return Run(path=path, seed=int(seed), overrides={k: v for k, v in overrides.items() if k not in NOT_SETTINGS},
-               config=config or {}, choices=choices, finished=(path / "summary.json").is_file())
+               config=config or {}, choices=choices, finished=run_finished(path))
 
 
 def find_runs(sweep_dir: Path) -> list[Run]:

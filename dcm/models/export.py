@@ -40,6 +40,11 @@ def _dataset_identity(path: str | None) -> dict[str, Any]:
     return {"path": Path(path).name, **{k: v.item() if hasattr(v, "item") else str(v) for k, v in attrs.items()}}
 
 
+def run_finished(run_dir: Path) -> bool:
+    """Whether a train.py run has ended: it writes summary.json last, so a run still training or killed has none."""
+    return (run_dir / "summary.json").is_file()
+
+
 def run_checkpoint(run_dir: Path) -> Path:
     """The checkpoint a train.py run selected (on its monitor), or its last one."""
     summary = run_dir / "summary.json"
