@@ -6,7 +6,8 @@ L_task (``R_within``, its bootstrap 90 % interval ``R_within_lo`` / ``R_within_h
 ``R_within_n_skills``, ``R_pooled``; ``R`` = ``R_pooled``), ``top3_regret`` (what keeping the 3 best-ranked
 schedules per skill loses: 0 the truly best, 1 a random pick),
 ``L_task_mae_N`` and, for force predictors, L_MSE (normalised units, learned models only), per-axis RMSE
-[N, N·m], ``force_rmse_N``, ``force_rmse_copy_N`` and ``force_rmse_ratio_copy``; plus n and what produced
+[N, N·m], ``force_rmse_N``, ``force_rmse_copy_N``, ``force_rmse_ratio_copy`` and the part of the force error a
+skill's trials share (``force_rmse_skill_common_N``, the same for copy-F_demo); plus n and what produced
 them (model kind, T, sampler, samples, seed). A learned model is reported beside two references under
 ``references``: ``copy_demo`` and ``stiffness_ridge`` (fitted on the same file's train split in seconds, or
 loaded from ``reference=<json>``), so every comparison shows them. Skills are the trajectories' ``demo_id``.

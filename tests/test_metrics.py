@@ -12,6 +12,7 @@ from dcm.models.metrics import (
     correlation,
     force_metrics,
     force_prediction_metrics,
+    skill_common_rmse,
     ranking_metrics,
     within_skill_correlation,
     within_skill_interval,
@@ -132,6 +133,27 @@ def test_force_rmse_next_to_copy_demo() -> None:
     # the L_task implied by the forces: copy-F_demo predicts 0 everywhere, so it ranks nothing
     m, L_pred, L_true = force_prediction_metrics(F_demo, F_obs, F_demo, np.zeros(4, int))
     assert np.all(L_pred == 0) and math.isnan(m["R_within"]) and m["L_task_mae_N"] == pytest.approx(L_true.mean())
+
+
+def test_skill_common_error_splits_a_path_bias_from_what_varies_with_the_schedule() -> None:
+    rng = np.random.default_rng(3)
+    F_obs = rng.normal(size=(6, 30, 6))
+    skills = np.array([0, 0, 0, 1, 1, 1])
+    bias = rng.normal(size=(2, 30, 6))  # one force-profile error per skill, the same for each of its trials
+    biased = F_obs + bias[skills]
+    assert skill_common_rmse(biased, F_obs, skills) == pytest.approx(np.sqrt(np.mean(bias[..., :3] ** 2)))
+    # zero-mean scatter within every skill shares nothing
+    scatter = rng.normal(size=(3, 30, 6))
+    scattered = F_obs + np.concatenate([scatter - scatter.mean(0), scatter - scatter.mean(0)])
+    assert skill_common_rmse(scattered, F_obs, skills) == pytest.approx(0.0, abs=1e-12)
+    # pooled over both skills the two biases would partly cancel; per skill they do not
+    assert skill_common_rmse(biased, F_obs, skills) > skill_common_rmse(biased, F_obs, np.zeros(6, int))
+    m = force_prediction_metrics(biased, F_obs, F_obs + 2.0, skills)[0]
+    assert m["force_rmse_skill_common_N"] == pytest.approx(m["force_rmse_N"])
+    assert m["force_rmse_skill_common_copy_N"] == pytest.approx(2.0)
+    assert "force_rmse_skill_common_N" not in force_prediction_metrics(biased, F_obs, F_obs, None)[0]
+    with pytest.raises(ValueError, match="5 skills for 6 trajectories"):
+        skill_common_rmse(biased, F_obs, skills[:5])
 
 
 def test_interval_is_narrow_for_many_trials_and_wide_when_one_trial_carries_the_correlation() -> None:

@@ -195,10 +195,31 @@ def force_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray) -> 
     return out
 
 
+def skill_common_rmse(force_a: np.ndarray, force_b: np.ndarray, skills: np.ndarray) -> float:
+    """RMS [N] of the part of the force error (a - b) that a skill's trials share: per skill, the mean error
+    over its trials at each step and force axis, counted once per trial.
+
+    It is the error in the path's own force profile, the same whatever the schedule, so it mostly shifts a
+    skill's L_task rather than reorder its schedules; the rest of the error (``sqrt(total² - common²)``)
+    is what varies with the schedule. A skill of one trial shares all of its error.
+    """
+    error = (np.asarray(force_a, dtype=np.float64) - np.asarray(force_b, dtype=np.float64))[..., :3]
+    skills = np.asarray(skills).ravel()
+    if skills.shape != error.shape[:1]:
+        raise ValueError(f"skill_common_rmse: {skills.shape[0]} skills for {error.shape[0]} trajectories")
+    common = np.empty_like(error)
+    for skill in np.unique(skills):
+        sel = skills == skill
+        common[sel] = error[sel].mean(axis=0)
+    return float(np.sqrt(np.mean(common**2)))
+
+
 def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray,
                              skills: np.ndarray | None, L_pred: np.ndarray | None = None
                              ) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
-    """:func:`force_metrics` plus :func:`ranking_metrics` of the L_task the forces imply.
+    """:func:`force_metrics` plus :func:`ranking_metrics` of the L_task the forces imply, and with ``skills``
+    the part of the model's and copy-F_demo's force error a skill's trials share (:func:`skill_common_rmse`:
+    ``force_rmse_skill_common_N``, ``force_rmse_skill_common_copy_N``).
 
     Returns ``(metrics, L_task_pred, L_task_true)``; L_task is :func:`dcm.control.objectives.task_loss`, of
     ``F_pred`` unless the model gives its own ``L_pred`` (``ForceModel.predicted_task_loss``).
@@ -206,8 +227,12 @@ def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.n
     if L_pred is None:
         L_pred = np.asarray(task_loss(np.asarray(F_pred, np.float64), np.asarray(F_demo, np.float64)))
     L_true = np.asarray(task_loss(np.asarray(F_obs, np.float64), np.asarray(F_demo, np.float64)))
-    return {**force_metrics(F_pred, F_obs, F_demo), **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
+    metrics = force_metrics(F_pred, F_obs, F_demo)
+    if skills is not None:
+        metrics.update(force_rmse_skill_common_N=skill_common_rmse(F_pred, F_obs, skills),
+                       force_rmse_skill_common_copy_N=skill_common_rmse(F_demo, F_obs, skills))
+    return {**metrics, **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
 
 
 __all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "REGRET_KEY", "TOP_PICKS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
-           "ranking_metrics", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]
+           "ranking_metrics", "skill_common_rmse", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]
