@@ -32,13 +32,17 @@ bench: install
 
 # Shipped predictors on skills they never trained on -> reports/acceptance.md. Generates its files once
 # (about 3 min): the held-out wavelike skill and the acceptance skills, recorded as `sim`/`diverse` record
-# their demos (8 s) and as the *_contact presets do (12 s, leading demonstrator), and the held-out line.
+# their demos (8 s) and as the *_contact presets do (12 s, leading demonstrator), and the held-out line; the
+# 12 s files once more on the 192 x 192 bowl grid of diverse_contact_fine, where the force has converged.
 acceptance: install
 	test -f data/test_wavelike.h5 || $(BIN)/python -m dcm.data.generate dataset=sim "skills=[wavelike]" out=data/test_wavelike.h5
 	test -f data/acceptance.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance
 	test -f data/test_wavelike_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact "skills=[wavelike]" out=data/test_wavelike_contact.h5
 	test -f data/test_line_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact "skills=[line]" out=data/test_line_contact.h5
 	test -f data/acceptance_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true out=data/acceptance_contact.h5
+	test -f data/test_wavelike_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact_fine "skills=[wavelike]" out=data/test_wavelike_fine.h5
+	test -f data/test_line_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact_fine "skills=[line]" out=data/test_line_fine.h5
+	test -f data/acceptance_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true +dataset.bowl.hfield_res=192 out=data/acceptance_fine.h5
 	$(BIN)/python bench/acceptance.py
 
 # One command per model study (conf/experiment/<name>.yaml; cost in its header), e.g. `make study-realistic`:

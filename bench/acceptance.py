@@ -32,7 +32,9 @@ from dcm.models.predict import trained_on  # noqa: E402
 TARGET_R_WITHIN = 0.85
 DATASETS = ("data/test_wavelike.h5:test", "data/acceptance.h5:test",  # 8 s demos (the *_sim, *_diverse files)
             "data/test_wavelike_contact.h5:test", "data/test_line_contact.h5:test",  # 12 s, leading demonstrator
-            "data/acceptance_contact.h5:test")
+            "data/acceptance_contact.h5:test",
+            "data/test_wavelike_fine.h5:test", "data/test_line_fine.h5:test",  # the same on a 192 x 192 bowl grid
+            "data/acceptance_fine.h5:test")
 COLUMNS = ("R_within", INTERVAL, "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy")
 
 

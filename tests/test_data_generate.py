@@ -227,6 +227,13 @@ def test_diverse_contact_slow_extends_the_wide_preset_with_slow_train_curves() -
     assert len(seeds) == len(set(seeds))
 
 
+def test_diverse_contact_fine_is_the_slow_preset_on_a_finer_bowl_grid() -> None:
+    slow, fine = _plan("diverse_contact_slow"), _plan("diverse_contact_fine")
+    assert [(j.skill, j.trial_splits, j.seed) for j in fine] == [(j.skill, j.trial_splits, j.seed) for j in slow]
+    for s, f in zip(slow, fine):
+        assert f.spec == {**s.spec, "bowl": {**s.spec["bowl"], "hfield_res": 192}}
+
+
 def test_extra_skills_must_be_a_mapping() -> None:
     from dcm.data.presets import PresetError, plan_demos
 

@@ -39,6 +39,15 @@ def within_demo_spread(L_task: np.ndarray, demo_ids: np.ndarray) -> str:
     return f"{np.median(ratios):.2f} [{min(ratios):.2f}–{max(ratios):.2f}]"
 
 
+def force_step_change(wrench: np.ndarray) -> float:
+    """Median over trajectories of the mean step-to-step change of the force vector (N, H, 6) -> N.
+
+    A rough surface shows here: on a coarse bowl grid the tool crosses facet edges and the force jumps from step
+    to step (docs/results.md, "The bowl's heightfield grid")."""
+    steps = np.linalg.norm(np.diff(wrench[..., :3], axis=1), axis=-1)
+    return float(np.median(steps.mean(axis=1)))
+
+
 def _packages(packages: dict[str, str] | None) -> str:
     if not packages:
         return "unrecorded package versions (a file from before they were recorded)"
@@ -76,6 +85,11 @@ def summarize(path: Path) -> str:
                      f"{lt.min():7.3f} {np.median(lt):7.3f} {lt.max():7.3f}        "
                      f"{lc.min():7.3f} {np.median(lc):7.3f} {lc.max():7.3f}   "
                      f"{within_demo_spread(lt, everything.demo_ids[rows])}")
+    ok = ~failed
+    if ok.any():
+        lines.append(f"  force step change, mean |dF| per control step over the force axes, median over trajectories: "
+                     f"F_obs {force_step_change(everything.arrays['F_obs'][ok]):.3f} N, "
+                     f"F_demo {force_step_change(everything.arrays['F_demo'][ok]):.3f} N")
     # group failure reasons by their wording (numbers masked), keep one full example each
     failures = [str(m.get("failure_reason", "")) for m, bad in zip(everything.meta, failed) if bad]
     kinds: dict[str, list[str]] = {}
