@@ -22,7 +22,9 @@ SHIPPED = ("dcm_sim.ckpt", "baseline_sim.ckpt", "dcm_realistic.ckpt", "stiffness
            "dcm_diverse_contact_wide.ckpt", "baseline_diverse_contact_wide.ckpt",
            "stiffness_ridge_diverse_contact_wide.json",
            "dcm_diverse_contact_slow.ckpt", "baseline_diverse_contact_slow.ckpt",
-           "stiffness_ridge_diverse_contact_slow.json")
+           "stiffness_ridge_diverse_contact_slow.json",
+           "dcm_diverse_contact_fine.ckpt", "baseline_diverse_contact_fine.ckpt",
+           "stiffness_ridge_diverse_contact_fine.json")
 
 
 def test_every_documented_predictor_is_shipped_and_the_card_matches_the_files() -> None:
