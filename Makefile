@@ -54,9 +54,12 @@ study-%: install
 # The tuning study (paper Figs. 10-11) with the demo's predictors (trained on `diverse_contact`): 16 seeds on
 # the wavelike skill, recorded as their training demos were (12 s, leading demonstrator). PREDICTORS=diverse:
 # the 8 s predictors; PREDICTORS=sim: the paper's protocol, predictors trained on spirals only. Every
-# *_contact* preset (diverse_contact_wide, ...) records at 12 s with the lead.
+# *_contact* preset (diverse_contact_wide, ...) records at 12 s with the lead; the *_fine ones also wipe the
+# wavelike skill's bowl on their 192 x 192 grid.
 PREDICTORS ?= diverse_contact
-RECORDING ?= $(if $(findstring _contact,$(PREDICTORS)),demo.duration_s=12.0 +demo.lead=true)
+FINE_BOWL := 'demo.bowl={hfield_res:192,name:medium_192}'
+RECORDING ?= $(if $(findstring _contact,$(PREDICTORS)),demo.duration_s=12.0 +demo.lead=true) \
+	$(if $(findstring _fine,$(PREDICTORS)),$(FINE_BOWL))
 study-tuning: install
 	$(BIN)/python -m dcm.tuning.study ckpt=models/dcm_$(PREDICTORS).ckpt baseline_ckpt=models/baseline_$(PREDICTORS).ckpt \
 		reference_json=models/stiffness_ridge_$(PREDICTORS).json seeds=16 $(RECORDING) hydra.run.dir=outputs/studies/tuning_$(PREDICTORS)

@@ -52,9 +52,11 @@ def test_a_shipped_predictor_loads_silently_and_scores_schedules(name: str) -> N
 
 def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_dataset_path: Path) -> None:
     """What `make acceptance` pairs predictors with held-out files on, and what tune.py checks the new demo
-    against: the *_contact presets record 12 s demos with a leading demonstrator, the others 8 s without."""
+    against: the *_contact presets record 12 s demos with a leading demonstrator, the others 8 s without; the
+    *_fine ones wipe every bowl on a 192 x 192 grid, the others on each bowl's own."""
     for name in SHIPPED:
         expected = Recording(12.0, True) if "_contact" in name else Recording(8.0, False)
+        expected = expected._replace(bowl_grid=192) if "_fine" in name else expected
         assert preset_recording(trained_on(MODELS / name)) == expected, name
     assert file_recording(tiny_dataset_path) == preset_recording("tiny")
     assert preset_recording("no_such_preset") is None
@@ -69,5 +71,6 @@ def test_make_study_tuning_records_the_skill_as_the_predictors_training_demos(pr
         pytest.skip("make is not installed")
     dry = subprocess.run(["make", "-n", "study-tuning", f"PREDICTORS={predictors}"], cwd=MODELS.parent,
                          capture_output=True, text=True, check=True).stdout
-    recorded = "demo.duration_s=12.0 +demo.lead=true" in dry
-    assert recorded == (preset_recording(predictors) == Recording(12.0, True)), dry
+    trained = preset_recording(predictors)
+    assert ("demo.duration_s=12.0 +demo.lead=true" in dry) == (trained[:2] == (12.0, True)), dry
+    assert ("'demo.bowl={hfield_res:192,name:medium_192}'" in dry) == (trained.bowl_grid == 192), dry

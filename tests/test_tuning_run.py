@@ -222,3 +222,21 @@ def test_tune_names_the_overrides_when_the_demo_is_recorded_otherwise_than_the_t
     assert recording_mismatch(REPO / "models/dcm_sim.ckpt", eight) is None
     assert recording_mismatch(tiny_checkpoint, eight) is None  # a training checkpoint names no preset
     assert recording_mismatch("copy_demo", eight) is None
+
+
+def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid():
+    """The *_fine predictors learned forces on a 192 x 192 bowl grid; a skill on a coarser grid shows facet
+    jumps they never saw, so tune.py names the inline bowl that gives the skill's bowl that grid."""
+    spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
+    coarse = DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True})
+    assert coarse.bowl.hfield_res != 192
+    message = recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", coarse)
+    assert "on a 192 x 192 bowl grid" in message and f"on a {coarse.bowl.hfield_res} x" in message
+    override = message.split("were: ")[1].split(" (or")[0]
+    assert override.startswith("'demo.bowl={") and "hfield_res:192" in override
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):  # the override, as tune.py reads it
+        cfg = compose("tune", overrides=["demo=wavelike", "demo.duration_s=12.0", "+demo.lead=true", override.strip("'")])
+    fine = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo))
+    assert fine.bowl.hfield_res == 192 and fine.bowl.rim_radius_m == coarse.bowl.rim_radius_m
+    assert recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", fine) is None
+    assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", fine) is None  # its bowls keep their own grid

@@ -1,7 +1,10 @@
-"""How a dataset's demos were recorded: their duration and whether the demonstrator led the tool.
+"""How a dataset's demos were recorded: their duration, whether the demonstrator led the tool, and the bowl grid.
 
 A predictor meets a new skill's demo through F_demo and x_demo, so it should see that demo recorded as its
-training demos were: ``tune.py`` warns and ``bench/acceptance.py`` pairs files on this.
+training demos were: ``tune.py`` warns and ``bench/acceptance.py`` pairs files on this. The bowl grid is part
+of it because MuJoCo wipes a heightfield of flat facets: on a coarse grid a fast stroke's force jumps at the
+facet edges, which a predictor trained on a converged grid never saw (docs/results.md, "The bowl's heightfield
+grid").
 """
 
 from __future__ import annotations
@@ -13,14 +16,18 @@ from typing import Any, Mapping, NamedTuple
 class Recording(NamedTuple):
     duration_s: float
     lead: bool
+    bowl_grid: int | None = None  # the preset's bowl.hfield_res; None: each bowl keeps its own (80-112)
 
     def describe(self) -> str:
-        return f"{self.duration_s:g} s demos {'with' if self.lead else 'without'} a leading demonstrator"
+        grid = "" if self.bowl_grid is None else f" on a {self.bowl_grid} x {self.bowl_grid} bowl grid"
+        return f"{self.duration_s:g} s demos {'with' if self.lead else 'without'} a leading demonstrator{grid}"
 
 
 def recording(dataset_config: Mapping[str, Any]) -> Recording:
     """The recording of a dataset preset (``conf/dataset/*.yaml``; DemoSpec's defaults where it says nothing)."""
-    return Recording(float(dataset_config.get("duration_s", 8.0)), bool(dataset_config.get("demo_lead", False)))
+    grid = (dataset_config.get("bowl") or {}).get("hfield_res")
+    return Recording(float(dataset_config.get("duration_s", 8.0)), bool(dataset_config.get("demo_lead", False)),
+                     None if grid is None else int(grid))
 
 
 def preset_recording(name: str | None) -> Recording | None:

@@ -240,11 +240,28 @@ def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
         fixes.append(f"demo.duration_s={trained.duration_s:g}")
     if bool(spec.lead) != trained.lead:
         fixes.append(f"++demo.lead={str(trained.lead).lower()}")
+    grid = int(spec.bowl.hfield_res)
+    if trained.bowl_grid is not None and grid != trained.bowl_grid:
+        name = {"name": f"{spec.bowl.name}_{trained.bowl_grid}"} if spec.bowl.name else {}
+        fixes.append(bowl_override(spec.bowl, hfield_res=trained.bowl_grid, **name))
     if not fixes:
         return None
+    here = Recording(float(spec.duration_s), bool(spec.lead), None if trained.bowl_grid is None else grid)
     return (f"ckpt={ckpt} learned from {trained.describe()} (dataset {preset}); this skill's demo: "
-            f"{Recording(float(spec.duration_s), bool(spec.lead)).describe()}. To record it as the model's "
-            f"training demos were: {' '.join(fixes)} (or those fields of demo_file)")
+            f"{here.describe()}. To record it as the model's training demos were: {' '.join(fixes)} "
+            "(or those fields of demo_file)")
+
+
+def bowl_override(bowl: Any, **changes: Any) -> str:
+    """The command-line override that gives the skill ``bowl`` (a BowlSpec) with ``changes``: the fields that
+    differ from BowlSpec's defaults, as one inline mapping (a bowl preset name cannot take a field override)."""
+    from dcm.sim.geometry import BowlSpec
+
+    default = BowlSpec().to_dict()
+    fields = {k: v for k, v in {**bowl.to_dict(), **changes}.items() if v != default[k] or k in changes}
+    plain = lambda v: "[" + ",".join(f"{x:g}" for x in v) + "]" if isinstance(v, list) else (  # noqa: E731
+        f"{v:g}" if isinstance(v, float) else str(v))
+    return "'demo.bowl={" + ",".join(f"{k}:{plain(v)}" for k, v in fields.items()) + "}'"
 
 
 def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | None = None) -> bool:
