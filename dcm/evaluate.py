@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from dcm.control.objectives import task_loss
+from dcm.control.objectives import task_loss, task_window_start
 from dcm.cli import resolve_device
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
@@ -40,33 +40,42 @@ log = logging.getLogger("dcm.evaluate")
 
 
 def score(predictor: Any, data: TrajectoryDataset, skills: np.ndarray | None, n_samples: int | None = None,
-          seed: int = 0) -> dict[str, float]:
-    """Metrics of any predictor on a set of trajectories (see the module docstring for the keys)."""
+          seed: int = 0, from_step: int = 0) -> dict[str, float]:
+    """Metrics of any predictor on a set of trajectories (see the module docstring for the keys); force
+    errors and L_task count the steps from ``from_step`` on."""
     if isinstance(predictor, ForceModel):
-        return evaluate_model(predictor, data, n_samples, seed, skills)[0]
+        return evaluate_model(predictor, data, n_samples, seed, skills, from_step)[0]
     cond, F_obs = data.cond.numpy(), data.target.numpy()
     x_demo, F_demo, x_attr, K = (cond[..., cond_slice(f)] for f in ("x_demo", "F_demo", "x_attr", "K"))
+    window = slice(int(from_step), None)
     if isinstance(predictor, ForcePredictor):
         F_pred, _ = predictor.predict_forces(x_demo, F_demo, x_attr, K, n_samples=n_samples)
-        metrics = force_prediction_metrics(np.asarray(F_pred), F_obs, F_demo, skills)[0]
-    else:
-        L_true = np.asarray(task_loss(F_obs.astype(np.float64), F_demo.astype(np.float64)))
+        metrics = force_prediction_metrics(np.asarray(F_pred)[:, window], F_obs[:, window], F_demo[:, window],
+                                           skills)[0]
+    else:  # a stiffness ridge predicts the L_task of the window it was fitted on (checked by the caller)
+        L_true = np.asarray(task_loss(F_obs[:, window].astype(np.float64), F_demo[:, window].astype(np.float64)))
         metrics = ranking_metrics(predict_task_loss(predictor, x_demo, F_demo, x_attr, K), L_true, skills)
     return {"R": metrics["R_pooled"], **metrics}
 
 
 def reference_scores(dataset: str | Path, data: TrajectoryDataset, skills: np.ndarray,
-                     reference: str | Path | None, n_phases: int | None = None) -> dict[str, dict[str, Any]]:
+                     reference: str | Path | None, n_phases: int | None = None,
+                     task_from_s: float = 0.0, from_step: int = 0) -> dict[str, dict[str, Any]]:
     """copy_demo and stiffness_ridge on the same trajectories; the ridge is skipped, with why, if unusable.
 
-    ``n_phases``: the phase count of the trajectories' schedules, if known, checked against the ridge's."""
-    out: dict[str, dict[str, Any]] = {COPY_DEMO: {**score(CopyDemo(), data, skills), **CopyDemo().describe()}}
+    ``n_phases``: the phase count of the trajectories' schedules, if known, checked against the ridge's.
+    ``task_from_s`` / ``from_step``: where the scored window starts, in seconds and in steps (a fitted ridge
+    learns the L_task of the same window; a loaded one must have)."""
+    out: dict[str, dict[str, Any]] = {COPY_DEMO: {**score(CopyDemo(), data, skills, from_step=from_step),
+                                                  **CopyDemo().describe()}}
     try:
-        ridge = load_model(reference) if reference else StiffnessRegression.fit_dataset(dataset, "train")
+        ridge = load_model(reference) if reference else StiffnessRegression.fit_dataset(dataset, "train",
+                                                                                         task_from_s=task_from_s)
         if not isinstance(ridge, StiffnessRegression):
             raise ModelInputError(f"reference={reference} is not a stiffness reference JSON")
         ridge.check_phases(n_phases, f"dataset {dataset}")
-        out[STIFFNESS_RIDGE] = {**score(ridge, data, skills), **ridge.describe()}
+        ridge.check_window(task_from_s, f"reference={reference}")
+        out[STIFFNESS_RIDGE] = {**score(ridge, data, skills, from_step=from_step), **ridge.describe()}
     except ValueError as err:  # DatasetError (e.g. no train split), StiffnessScheduleError, ReferenceError
         if reference:  # asked for explicitly: an error, not a silent gap
             raise
@@ -79,11 +88,13 @@ def reference_scores(dataset: str | Path, data: TrajectoryDataset, skills: np.nd
 def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_samples: int | None = None,
              n_eval: int | None = None, seed: int = 0, device: str = "auto", reference: str | Path | None = None,
              sampler: str | None = None, sampling_steps: int | None = None,
-             task_loss: str | None = None) -> dict[str, Any]:
+             task_loss: str | None = None, task_from_s: float = 0.0) -> dict[str, Any]:
     """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model.
 
     ``sampler`` / ``sampling_steps`` override a DCM's sampler (ddpm | ddim and DDIM's steps) for this run,
-    ``task_loss`` how its samples give L_task (of_mean | over_samples; the same for the baseline)."""
+    ``task_loss`` how its samples give L_task (of_mean | over_samples; the same for the baseline).
+    ``task_from_s``: score only the force from this time on, e.g. 1.0 to leave out the demos' approach and
+    touch-down (:func:`dcm.control.objectives.task_window_start`)."""
     predictor = load_model(ckpt, map_location="cpu")
     if isinstance(predictor, ForceModel):
         predictor = predictor.to(resolve_device(device))
@@ -101,6 +112,11 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
     n_phases = dataset_phases(loaded, required=False)
     if isinstance(predictor, StiffnessRegression):
         predictor.check_phases(n_phases, source=f"dataset {dataset}")
+        predictor.check_window(task_from_s, source=f"ckpt={ckpt}")
+    try:
+        from_step = task_window_start(task_from_s, loaded.control_hz, loaded.horizon)
+    except ValueError as err:
+        raise ModelInputError(f"dataset {dataset}: {err}") from None
     data = TrajectoryDataset.from_loaded(loaded)
     skills = loaded.demo_ids
     if n_eval is not None:
@@ -108,8 +124,9 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
             raise ModelInputError(f"n_eval must be >= 1 or null, got {n_eval}")
         data, skills = data.subset(int(n_eval)), skills[: int(n_eval)]
     result: dict[str, Any] = {
-        **score(predictor, data, skills, n_samples, seed),
+        **score(predictor, data, skills, n_samples, seed, from_step),
         **describe(predictor, n_samples),
+        "task_from_s": float(task_from_s),
         "n": len(data),
         "n_skills": int(len(np.unique(skills))),
         "seed": int(seed),
@@ -120,7 +137,7 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
         "horizon": loaded.horizon,
     }
     if isinstance(predictor, ForceModel):
-        result["references"] = reference_scores(dataset, data, skills, reference, n_phases)
+        result["references"] = reference_scores(dataset, data, skills, reference, n_phases, task_from_s, from_step)
     return result
 
 
@@ -149,7 +166,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     try:
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
                           seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference,
-                          sampler=cfg.sampler, sampling_steps=cfg.sampling_steps, task_loss=cfg.task_loss)
+                          sampler=cfg.sampler, sampling_steps=cfg.sampling_steps, task_loss=cfg.task_loss,
+                          task_from_s=float(cfg.task_from_s))
     except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
         raise SystemExit(f"error: {err}") from None
     out = Path(str(cfg.out))

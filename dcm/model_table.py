@@ -143,6 +143,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--n-samples", type=int, default=None)
     parser.add_argument("--task-loss", default=None, choices=TASK_LOSSES,
                         help="DCM: how k samples give L_task (default: the checkpoint's own)")
+    parser.add_argument("--task-from-s", type=float, default=None,
+                        help="score the force from this time [s] on (1.0: without the demos' approach)")
     parser.add_argument("--reference", default=None,
                         help="stiffness reference JSON for the ridge row (default: fitted on the dataset's train split)")
     parser.add_argument("--out", type=Path, default=None, help="write the Markdown table here")
@@ -164,7 +166,8 @@ def main(argv: list[str] | None = None) -> str:
             parser.error(f"--runs {spec!r}: no finished run (with summary.json) matches {pattern!r}")
         runs[label] = finished
     overrides = {k: v for k, v in (("sampler", args.sampler), ("sampling_steps", args.sampling_steps),
-                                   ("n_samples", args.n_samples), ("task_loss", args.task_loss)) if v is not None}
+                                   ("n_samples", args.n_samples), ("task_loss", args.task_loss),
+                                   ("task_from_s", args.task_from_s)) if v is not None}
     tag = "_".join(f"{k}{v}" for k, v in overrides.items())
     if args.reference:
         overrides["reference"] = args.reference

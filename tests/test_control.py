@@ -112,3 +112,18 @@ def test_objectives_have_documented_units():
     stiffness = np.zeros((10, 6))
     stiffness[:, :3] = [300.0, 400.0, 0.0]
     assert compliance_loss(stiffness) == pytest.approx(0.5)
+
+
+def test_the_scored_window_starts_after_the_approach():
+    from dcm.control.objectives import task_window_start
+
+    assert task_window_start(0.0, 20.0, 240) == 0 and task_window_start(1.0, 20.0, 240) == 20
+    assert task_window_start(0.52, 20.0, 240) == 10  # rounded to the control grid
+    for bad in (-0.1, 12.0, float("nan")):
+        with pytest.raises(ValueError, match=f"task_from_s = {bad} s must be >= 0 and before the end of the 12 s"):
+            task_window_start(bad, 20.0, 240)
+    # a touch-down a step late: 8 N for one step holds most of the error of a trajectory tracked to 0.1 N
+    force_demo, force_obs = np.zeros((1, 240, 6)), np.full((1, 240, 6), 0.1)
+    force_demo[0, 10:, 2] = force_obs[0, 11:, 2] = 8.0
+    start = task_window_start(1.0, 20.0, 240)
+    assert task_loss(force_obs, force_demo)[0] > 3 * task_loss(force_obs[:, start:], force_demo[:, start:])[0]

@@ -79,3 +79,22 @@ def test_runs_still_training_are_left_out_and_named(tmp_path: Path, capsys: pyte
         main(["--dataset", str(tmp_path / "set.h5"), "--runs", f"DCM={tmp_path / 'dcm_s*'}"])
     err = capsys.readouterr().err
     assert "no summary.json" in err and str(tmp_path / "dcm_s0") in err and "no finished run" in err
+
+
+def test_task_from_s_reaches_evaluate_and_keeps_its_own_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import dcm.evaluate
+    from dcm.model_table import main
+
+    run = tmp_path / "dcm_s0"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "last.ckpt").write_bytes(b"weights")
+    (run / "summary.json").write_text("{}")
+    seen: list[dict] = []
+
+    def evaluate(path: Path, dataset: Path, split: str, **overrides: object) -> dict:
+        seen.append(overrides)
+        return {"ckpt": str(Path(path).resolve()), REGRET_KEY: 0.0, "R_within": 0.5, "references": {}}
+
+    monkeypatch.setattr(dcm.evaluate, "evaluate", evaluate)
+    main(["--dataset", str(tmp_path / "set.h5"), "--splits", "valid", "--task-from-s", "1.0", "--runs", f"DCM={run}"])
+    assert seen == [{"task_from_s": 1.0}] and (run / "eval_set_valid_task_from_s1.0.json").is_file()

@@ -148,6 +148,33 @@ def test_evaluate_reports_the_references_beside_the_model(baseline_ckpt: Path, t
     assert copy_alone["model"] == "copy_demo" and copy_alone["force_rmse_ratio_copy"] == 1.0
 
 
+def test_evaluate_scores_the_force_after_the_approach(baseline_ckpt: Path, tiny_dataset_path: Path,
+                                                     tmp_path: Path) -> None:
+    """task_from_s scores the window from that time on, for the model and both references; a saved ridge
+    must have learned the same window's L_task."""
+    loaded = load_dataset(tiny_dataset_path, split="valid")
+    start = int(round(0.5 * loaded.control_hz))
+    result = evaluate(baseline_ckpt, tiny_dataset_path, split="valid", task_from_s=0.5)
+    assert result["task_from_s"] == 0.5
+    gap = loaded.arrays["F_obs"][:, start:, :3] - loaded.arrays["F_demo"][:, start:, :3]
+    assert result["force_rmse_copy_N"] == pytest.approx(float(np.sqrt(np.mean(gap.astype(np.float64) ** 2))))
+    assert result["references"]["copy_demo"]["force_rmse_N"] == pytest.approx(result["force_rmse_copy_N"])
+    assert result["force_rmse_copy_N"] != pytest.approx(evaluate(baseline_ckpt, tiny_dataset_path, split="valid")
+                                                         ["force_rmse_copy_N"])
+
+    windowed = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "w.json"),
+                                "--task-from-s", "0.5"])
+    assert load_reference(windowed).task_from_s == 0.5
+    fitted_here = result["references"]["stiffness_ridge"]  # fitted on the same window in memory
+    assert evaluate(windowed, tiny_dataset_path, split="valid", task_from_s=0.5)["R_within"] == pytest.approx(
+        fitted_here["R_within"], nan_ok=True)
+    whole = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "whole.json")])
+    with pytest.raises(ReferenceError, match=r"whole.json ranks L_task from 0 s on.*--task-from-s 0.5"):
+        evaluate(baseline_ckpt, tiny_dataset_path, split="valid", reference=whole, task_from_s=0.5)
+    with pytest.raises(ModelInputError, match="task_from_s = 99.0 s must be >= 0 and before the end"):
+        evaluate(baseline_ckpt, tiny_dataset_path, split="valid", task_from_s=99.0)
+
+
 def test_evaluate_says_why_the_ridge_is_missing(baseline_ckpt: Path, tmp_path: Path) -> None:
     # synthetic trajectories carry no phase_stiffness_Npm: the ridge cannot tell the number of phases
     data = write_synthetic_dataset(tmp_path / "synth.h5", n_train=6, n_valid=3, n_test=3)

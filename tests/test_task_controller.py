@@ -84,6 +84,12 @@ def test_task_check_on_one_skill(tmp_path) -> None:
     assert skill["sweep_L_task"][0] > skill["sweep_L_task"][-1]  # 100 N/m tracks worse than 2,500 N/m
     assert len(skill["random_L_task"]) == 4
     assert result["summary"]["spiral"]["n_skills"] == 1
+    # after the approach: the same rollouts, their error counted from 0.5 s on
+    wipe = task_check.main(["--dataset", "tiny", "--splits", "valid", "--max-skills", "1", "--n-random", "0",
+                            "--embodiment", "panda", "--demo-lead", "--task-from-s", "0.5", "--out", str(out)])
+    (after,) = wipe["skills"].values()
+    assert wipe["task_from_s"] == 0.5 and np.isfinite(after["sweep_L_task"]).all()
+    assert after["sweep_L_task"] != pytest.approx(skill["sweep_L_task"])
     sim = Simulator("tool", BowlSpec())
     demo = sim.record_demo(DemoSpec(family="spiral", press_m=0.01, duration_s=2.0, approach_s=0.4))
     flat = sim.constant_stiffness(demo, 600.0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 
@@ -16,6 +17,23 @@ def task_loss(force_obs: Any, force_demo: Any) -> Any:
     """
     err = (force_obs[..., :3] - force_demo[..., :3]) ** 2
     return err.mean(-1).mean(-1) ** 0.5
+
+
+def task_window_start(task_from_s: float, control_hz: float, horizon: int) -> int:
+    """The first control step that L_task counts when scoring from ``task_from_s`` seconds on.
+
+    Every demo starts with an approach (``DemoSpec.approach_s``, 1 s by default): the tool descends onto the
+    bowl and F_demo jumps from 0 to the press force within a step or two. A rollout that touches down a step
+    earlier or later, or overshoots on impact, errs by several newtons there, and those few steps can hold
+    most of a 12 s trajectory's squared error. Scoring from the approach's end ranks schedules by how they
+    track the force while wiping. Raises ValueError naming ``task_from_s`` unless 0 <= it < the horizon.
+    """
+    seconds = float(task_from_s)
+    start = int(round(seconds * float(control_hz))) if math.isfinite(seconds) else -1
+    if start < 0 or start >= int(horizon):
+        raise ValueError(f"task_from_s = {task_from_s} s must be >= 0 and before the end of the "
+                         f"{int(horizon) / float(control_hz):g} s trajectories")
+    return start
 
 
 def task_loss_over_samples(force_mean: Any, force_std: Any, force_demo: Any) -> Any:

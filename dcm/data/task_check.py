@@ -30,6 +30,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from dcm.control import compliance_loss, equal_time_phases, schedule_from_phases
+from dcm.control.objectives import task_loss, task_window_start
 
 SWEEP_NPM = (100.0, 150.0, 250.0, 500.0, 1000.0, 1500.0, 2500.0)
 ADDITIVITY_SCHEDULES = {"1500-150-1500": (1500.0, 150.0, 1500.0), "150-1500-150": (150.0, 1500.0, 150.0)}
@@ -47,21 +48,33 @@ def phase_additivity(schedule_error: np.ndarray, constant_errors: list[np.ndarra
     return float(schedule_error.sum() / max(expected, 1e-12))
 
 
-def check_skill(sim: Any, spec: Any, n_random: int, space: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
-    """All three measurements on one demo spec (a ``DemoSpec``)."""
+def check_skill(sim: Any, spec: Any, n_random: int, space: dict[str, Any], rng: np.random.Generator,
+                task_from_s: float = 0.0) -> dict[str, Any]:
+    """All three measurements on one demo spec (a ``DemoSpec``); L_task and the additivity's errors count the
+    force from ``task_from_s`` on (:func:`dcm.control.objectives.task_window_start`)."""
     demo = sim.record_demo(spec)
     horizon = demo.horizon
     bounds = equal_time_phases(horizon, 3)
     rot = float(space["rot_Nmprad"])
+    start = task_window_start(task_from_s, sim.control_hz, horizon)
+
+    def error(trial: Any) -> np.ndarray:
+        err = squared_error(trial.force_obs, demo.force_demo)
+        err[:start] = 0.0
+        return err
+
+    def loss(trial: Any) -> float:
+        return float("inf") if trial.failed else float(task_loss(trial.force_obs[start:], demo.force_demo[start:]))
+
     sweep: dict[float, Any] = {}
     for k in SWEEP_NPM:
         sweep[k] = sim.rollout(demo, sim.constant_stiffness(demo, k, rot))
-    l_sweep = [sweep[k].L_task for k in SWEEP_NPM]
+    l_sweep = [loss(sweep[k]) for k in SWEEP_NPM]
     additivity = {}
     for name, phases in ADDITIVITY_SCHEDULES.items():
         trial = sim.rollout(demo, schedule_from_phases(np.repeat(np.array(phases)[:, None], 3, 1), bounds, rot))
-        const = [squared_error(sweep[k].force_obs, demo.force_demo) for k in phases]
-        additivity[name] = phase_additivity(squared_error(trial.force_obs, demo.force_demo), const, bounds)
+        const = [error(sweep[k]) for k in phases]
+        additivity[name] = phase_additivity(error(trial), const, bounds)
     low, high = float(space["min_Npm"]), float(space["max_Npm"])
     l_task, l_comp = [], []
     for _ in range(n_random):
@@ -69,7 +82,7 @@ def check_skill(sim: Any, spec: Any, n_random: int, space: dict[str, Any], rng: 
         schedule = schedule_from_phases(phases, bounds, rot)
         trial = sim.rollout(demo, schedule)
         if not trial.failed:
-            l_task.append(trial.L_task)
+            l_task.append(loss(trial))
             l_comp.append(float(compliance_loss(schedule)))
     failed = sum(t.failed for t in sweep.values())
     return {
@@ -177,6 +190,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--n-random", type=int, default=20)
     parser.add_argument("--duration", type=float, default=None, help="override the demos' duration [s]")
     parser.add_argument("--demo-lead", action="store_true", help="record the demos with a leading demonstrator")
+    parser.add_argument("--task-from-s", type=float, default=0.0,
+                        help="count the force error from this time [s] on (1.0: without the demos' approach)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="reports/task_check")
     args = parser.parse_args(argv)
@@ -197,9 +212,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if key not in sims:
             sims = {key: Simulator(embodiment, spec.bowl, DomainSpec.resolve(preset["domain"]), seed=args.seed,
                                    damping=args.damping)}
-        skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims[key], spec, args.n_random, space, rng)
+        skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims[key], spec, args.n_random, space, rng,
+                                                             args.task_from_s)
     result = {"dataset": args.dataset, "splits": args.splits, "embodiment": embodiment, "damping": args.damping,
               "duration_s": preset.get("duration_s", 8.0), "demo_lead": bool(preset.get("demo_lead", False)),
+              "task_from_s": args.task_from_s,
               "seconds": time.perf_counter() - start, "summary": summarise(skills), "skills": skills}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -48,10 +48,11 @@ def read_skills(path: str | Path, names: list[str]) -> np.ndarray:
 
 @torch.no_grad()
 def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None = None, seed: int = 0,
-                   skills: np.ndarray | None = None) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+                   skills: np.ndarray | None = None, from_step: int = 0) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """Sample forces for every trajectory of ``dataset`` and compute the metrics.
 
-    ``skills`` (N,) labels trajectories for the within-skill correlations (None leaves them NaN). Returns
+    ``skills`` (N,) labels trajectories for the within-skill correlations (None leaves them NaN).
+    ``from_step``: force errors and L_task count the steps from this one on (L_MSE counts all). Returns
     ``(metrics, arrays)``; arrays holds ``pred_N``, ``std_N``, ``true_N``, ``F_demo_N`` (N,H,6) and
     ``L_task_pred``/``L_task_true`` (N,). Sampling uses a generator seeded with ``seed``.
     """
@@ -67,9 +68,11 @@ def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None
     F_demo = cond[..., cond_slice("F_demo")]
     arrays = {"pred_N": pred.cpu().numpy(), "std_N": std.cpu().numpy(), "true_N": true.cpu().numpy(),
               "F_demo_N": F_demo.cpu().numpy()}
-    L_pred = model.predicted_task_loss(pred.double(), std.double(), F_demo.double()).cpu().numpy()
-    scores, L_pred, L_true = force_prediction_metrics(arrays["pred_N"], arrays["true_N"], arrays["F_demo_N"], skills,
-                                                      L_pred=L_pred)
+    window = slice(int(from_step), None)
+    L_pred = model.predicted_task_loss(pred[:, window].double(), std[:, window].double(),
+                                       F_demo[:, window].double()).cpu().numpy()
+    scores, L_pred, L_true = force_prediction_metrics(*(arrays[k][:, window] for k in ("pred_N", "true_N", "F_demo_N")),
+                                                      skills, L_pred=L_pred)
     metrics: dict[str, float] = {"L_MSE": float(mse.compute()), "R": scores["R_pooled"], **scores,
                                  "mean_std_N": float(std[..., :3].mean())}
     arrays.update(L_task_pred=L_pred, L_task_true=L_true)

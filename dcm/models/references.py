@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import linalg
 
-from dcm.control.objectives import task_loss
+from dcm.control.objectives import task_loss, task_window_start
 from dcm.models.metrics import within_skill_correlation
 from dcm.models.stiffness_features import FEATURE_SPEC, batch_phase_values, feature_names, features
 
@@ -104,6 +104,18 @@ class StiffnessRegression:
             raise ReferenceError(f"{source}: schedules have {n_phases} phases, but the stiffness reference "
                                  f"{self.path or ''} was fitted on {self.n_phases}-phase schedules")
 
+    @property
+    def task_from_s(self) -> float:
+        """Where the L_task it learned starts [s]; 0 for fits made before the window existed."""
+        return float(self.info.get("task_from_s", 0.0))
+
+    def check_window(self, task_from_s: float, source: str) -> None:
+        """Refuse to score a window of L_task other than the one the ridge learned to rank."""
+        if abs(float(task_from_s) - self.task_from_s) > 1e-9:
+            raise ReferenceError(f"{source}: the stiffness reference {self.path or ''} ranks L_task from "
+                                 f"{self.task_from_s:g} s on, not from task_from_s = {float(task_from_s):g} s; fit "
+                                 f"one with `python -m dcm.models.references fit --task-from-s {float(task_from_s):g}`")
+
     # ------------------------------------------------------------------ prediction
     def predict_log_task_loss(self, K: Any) -> np.ndarray:
         """(B,) predicted log L_task for schedules K (B, H, 6) or (H, 6)."""
@@ -149,18 +161,25 @@ class StiffnessRegression:
 
     @classmethod
     def fit_dataset(cls, path: str | Path, split: str = "train", alpha: float | None = None,
-                    n_phases: int | None = None, index: np.ndarray | None = None) -> "StiffnessRegression":
+                    n_phases: int | None = None, index: np.ndarray | None = None,
+                    task_from_s: float = 0.0) -> "StiffnessRegression":
         """Fit on ``split`` of a dataset file (only its trajectories ``index``, if given), grouped by
-        ``demo_id``; L_task from its F_obs and F_demo."""
+        ``demo_id``; L_task from its F_obs and F_demo, counted from ``task_from_s`` on."""
         from dcm.data.schema import load_dataset
 
         loaded = load_dataset(path, split=split)
         P = int(n_phases) if n_phases is not None else dataset_phases(loaded)
         rows = slice(None) if index is None else np.asarray(index)
-        L = np.asarray(task_loss(loaded.arrays["F_obs"][rows].astype(np.float64),
-                                 loaded.arrays["F_demo"][rows].astype(np.float64)))
+        try:
+            window = slice(task_window_start(task_from_s, loaded.control_hz, loaded.horizon), None)
+        except ValueError as err:
+            raise ReferenceError(f"dataset {path}: {err}") from None
+        L = np.asarray(task_loss(loaded.arrays["F_obs"][rows][:, window].astype(np.float64),
+                                 loaded.arrays["F_demo"][rows][:, window].astype(np.float64)))
         info = {"dataset": _dataset_identity(Path(path), loaded.attrs), "split": split, "group_key": GROUP_KEY,
                 "phase_method": _phase_method(loaded.attrs)}
+        if task_from_s:  # only when set: the fit records of whole-trajectory fits stay as they were
+            info["task_from_s"] = float(task_from_s)
         if index is not None:
             info["subset"] = f"{len(L)} of {len(loaded)} trajectories"
         try:
@@ -325,9 +344,12 @@ def main(argv: list[str] | None = None) -> Path:
     fit.add_argument("--alpha", type=float, default=None, help="ridge strength (default: grouped cross-validation)")
     fit.add_argument("--n-phases", type=int, default=None,
                      help="phases of the schedules (default: from the trajectories' phase_stiffness_Npm)")
+    fit.add_argument("--task-from-s", type=float, default=0.0,
+                     help="learn the L_task of the force from this time [s] on (1.0: without the approach)")
     args = parser.parse_args(argv)
     try:
-        model = StiffnessRegression.fit_dataset(args.dataset, args.split, args.alpha, args.n_phases)
+        model = StiffnessRegression.fit_dataset(args.dataset, args.split, args.alpha, args.n_phases,
+                                                task_from_s=args.task_from_s)
     except ValueError as err:  # ReferenceError, DatasetError, StiffnessScheduleError
         raise SystemExit(f"error: {err}") from None
     out = model.save(args.out)
