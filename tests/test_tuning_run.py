@@ -17,6 +17,7 @@ from dcm.models.export import checkpoint_card
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
 from dcm.tuning.compare import compare
+from dcm.tuning.objectives import SimulatorObjective
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
 from dcm.tuning.run import TuneConfigError, check_config, record_skill, recording_mismatch, tune, use_sampler
 
@@ -128,6 +129,36 @@ def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny
         compare([out_dir], robot_trials=[5])
     with pytest.raises(TuneConfigError, match="validation_rollouts = 0"):
         check_config(_config(tiny_checkpoint, demo, out_dir, 8, "validation_rollouts=0"))
+
+
+def test_task_from_s_scores_every_tuner_after_the_approach(tiny_checkpoint: Path, tmp_path: Path):
+    """With task_from_s the predictor's L_task, the validation and the robot-based trials all count the force
+    from that time on; the window is part of the skill a trial log belongs to."""
+    from dcm.control import task_loss
+    from dcm.models.predict import predict_task_loss
+
+    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    cfg = _config(tiny_checkpoint, demo, out_dir, 8, "task_from_s=0.4")
+    results = tune(cfg, out_dir)
+    assert results["skill"]["task_from_s"] == 0.4
+    simulator, recorded, skill = record_skill(cfg, check_config(cfg))
+    assert skill.task_from_step == 8
+    window = slice(8, None)
+    solution = results["robot_free"]["solutions"][0]
+    phases = np.asarray([solution["phase_stiffness_Npm"]])
+    stiffness = skill.schedules(phases)[0]
+    trial = simulator.rollout(recorded, stiffness)
+    after = float(task_loss(trial.force_obs[window], recorded.force_demo[window]))
+    assert solution["validated"]["L_task_N"] == pytest.approx(after) and after != pytest.approx(trial.L_task)
+    assert SimulatorObjective(simulator, recorded, skill)(phases)[0, 0] == pytest.approx(after)  # the robot-based search
+    model = load_model(tiny_checkpoint)
+    inputs = (recorded.x_demo, recorded.force_demo, simulator.attractor(recorded, stiffness), stiffness)
+    torch.manual_seed(0)
+    whole = predict_task_loss(model, *inputs)
+    torch.manual_seed(0)
+    assert predict_task_loss(model, *inputs, from_step=8) != pytest.approx(whole)
+    with pytest.raises(TuneConfigError, match="task_from_s = 2.0 s must be >= 0 and before the end of the 2 s"):
+        check_config(_config(tiny_checkpoint, demo, out_dir, 8, "task_from_s=2.0"))
 
 
 def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoint: Path, tmp_path: Path):

@@ -107,17 +107,19 @@ def _numpy(value: Any) -> np.ndarray:
 
 
 def predict_task_loss(predictor: Any, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
-                      generator: Any = None) -> np.ndarray:
+                      generator: Any = None, from_step: int = 0) -> np.ndarray:
     """Predicted L_task (B,) [N] of any predictor for (B, H, 6) or (H, 6) raw inputs.
 
     Force predictors: :func:`dcm.control.objectives.task_loss` of the (``n_samples``-averaged) predicted
-    force against F_demo, or what a DCM's ``task_loss`` option makes of its samples
-    (``ForceModel.predicted_task_loss``). Others: their ``predict_task_loss``.
+    force against F_demo from step ``from_step`` on, or what a DCM's ``task_loss`` option makes of its
+    samples (``ForceModel.predicted_task_loss``). Others: their ``predict_task_loss``, of the window they
+    were fitted on (``StiffnessRegression.check_window``).
     """
     if isinstance(predictor, ForcePredictor):
         kwargs = {"n_samples": n_samples} if generator is None else {"n_samples": n_samples, "generator": generator}
         mean, std = predictor.predict_forces(_numpy(x_demo), _numpy(F_demo), _numpy(x_attr), _numpy(K), **kwargs)
-        mean, std, demo = (_numpy(a).astype(np.float64) for a in (mean, std, F_demo))
+        window = (Ellipsis, slice(int(from_step), None), slice(None))
+        mean, std, demo = (_numpy(a).astype(np.float64)[window] for a in (mean, std, F_demo))
         if isinstance(predictor, ForceModel):
             return np.atleast_1d(np.asarray(predictor.predicted_task_loss(mean, std, demo)))
         return np.atleast_1d(np.asarray(task_loss(mean, demo)))

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import compliance_loss, schedule_from_phases
+from dcm.control import compliance_loss, schedule_from_phases, task_loss
 
 
 @dataclass
@@ -27,6 +27,14 @@ class Skill:
     force_demo: np.ndarray  # (H, 6) N, N·m
     boundaries: np.ndarray  # (P + 1,) phase boundaries in control steps
     rot_Nmprad: float
+    task_from_step: int = 0  # L_task counts the force from this step on (tune.task_from_s)
+
+    def trial_task_loss(self, trial: Any) -> float:
+        """A simulated trial's L_task [N] over the scored window."""
+        if self.task_from_step == 0:
+            return float(trial.L_task)
+        window = slice(self.task_from_step, None)
+        return float(task_loss(trial.force_obs[window], self.force_demo[window]))
 
     def schedules(self, proposals: np.ndarray) -> np.ndarray:
         """(B, P, 3) per-phase stiffness in N/m -> (B, H, 6) schedules."""
@@ -96,7 +104,7 @@ class ModelObjective:
         t1 = time.perf_counter()
         with _inference_mode():
             L_task = predict_task_loss(self.model, x_demo, force_demo, x_attr, stiffness, n_samples=self.n_samples,
-                                       generator=self.generator(first_trial))
+                                       generator=self.generator(first_trial), from_step=self.skill.task_from_step)
         t2 = time.perf_counter()
         self.seconds_inputs += t1 - t0
         self.seconds_model += t2 - t1
@@ -144,5 +152,6 @@ class SimulatorObjective:
             trials = [self.simulator.rollout(self.demo, stiffness, repeat=r) for r in repeats]
             self.trials.extend(trials)
             failed = any(t.failed for t in trials)
-            scores.append([np.nan, np.nan] if failed else [np.mean([t.L_task for t in trials]), trials[0].L_comp])
+            scores.append([np.nan, np.nan] if failed else
+                          [np.mean([self.skill.trial_task_loss(t) for t in trials]), trials[0].L_comp])
         return np.asarray(scores, dtype=np.float64)

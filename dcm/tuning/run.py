@@ -32,6 +32,7 @@ import numpy as np
 
 from dcm.cli import check_integer, check_number
 from dcm.control import TASK_LOSSES, phase_boundaries
+from dcm.control.objectives import task_window_start
 from dcm.search import SearchSpace, check_budget, make_search, space_from_settings
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
@@ -194,6 +195,11 @@ def check_config(cfg: Any) -> CheckedConfig:
         spec = DemoSpec.load(cfg.demo_file)
     else:
         spec = DemoSpec.from_dict(_plain(cfg.demo), where="tune.demo")
+    _number(cfg.get("task_from_s", 0.0), "task_from_s")
+    try:
+        task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, spec.horizon(cfg.control_hz))
+    except ValueError as err:
+        raise TuneConfigError(f"{err} (the demo's length)") from None
     probe = np.random.default_rng(0).normal(size=(spec.horizon(cfg.control_hz), 6))  # stands in for the demo force
     try:
         phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, probe)
@@ -214,6 +220,7 @@ def check_predictor(model: Any, cfg: Any) -> None:
                               "reference JSON (python -m dcm.models.references fit)")
     if hasattr(model, "check_phases"):  # the stiffness reference reads K as per-phase values
         model.check_phases(cfg.stiffness.n_phases, source="tune stiffness.n_phases")
+        model.check_window(cfg.get("task_from_s", 0.0), source=f"tune task_from_s for ckpt={cfg.ckpt}")
     spec = getattr(model, "data_spec", None)
     if spec is not None:
         spec.check(cond_channel_names(), target_channel_names(), cfg.control_hz,
@@ -321,6 +328,8 @@ def fingerprints(cfg: Any, spec: Any, domain: Any, model: Any, device: Any) -> d
         "stiffness": {k: stiffness[k] for k in ("n_phases", "phases", "min_Npm", "max_Npm", "log", "rot_Nmprad")},
         "seed": int(cfg.seed),
     }
+    if cfg.get("task_from_s", 0.0):  # only when set: the trial logs of whole-demo runs keep their fingerprint
+        skill["task_from_s"] = float(cfg.task_from_s)
     robot = {**skill, "search": {"name": cfg.search.name, "options": _plain(cfg.search.options) or {}}}
     sampling = {k: v for k, v in describe(model, cfg.robot_free.n_samples).items() if k != "ckpt"}
     free = {**robot, "predictor_sha256": file_sha256(cfg.ckpt), "predictor": sampling,
@@ -343,7 +352,8 @@ def record_skill(cfg: Any, checked: Any) -> tuple[Any, Any, Skill]:
                           control_hz=cfg.control_hz, seed=cfg.seed, damping=cfg.stiffness.damping)
     demo = simulator.record_demo(checked.spec)
     boundaries = phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, demo.force_demo)
-    return simulator, demo, Skill(demo.x_demo, demo.force_demo, boundaries, cfg.stiffness.rot_Nmprad)
+    start = task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, demo.horizon)  # checked by check_config
+    return simulator, demo, Skill(demo.x_demo, demo.force_demo, boundaries, cfg.stiffness.rot_Nmprad, start)
 
 
 def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:

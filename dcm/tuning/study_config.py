@@ -131,7 +131,8 @@ def tune_config(cfg: Any, tuner: Tuner, seed: int, reference: list[float] | None
     base.pop("out_dir", None)  # ${hydra:...}: set below
     base.update(demo=plain(cfg.demo), demo_file=cfg.demo_file, stiffness=plain(cfg.stiffness),
                 search=plain(cfg.search), embodiment=cfg.embodiment, domain=plain(cfg.domain),
-                control_hz=cfg.control_hz, device=cfg.device, seed=int(seed), ckpt=tuner.ckpt,
+                control_hz=cfg.control_hz, task_from_s=float(cfg.get("task_from_s", 0.0)), device=cfg.device,
+                seed=int(seed), ckpt=tuner.ckpt,
                 validation_rollouts=int(cfg.validation_rollouts),
                 reference_point=None if reference is None else [float(v) for v in reference], out_dir=str(out_dir))
     base["robot_free"] = {**base["robot_free"], **plain(cfg.robot_free)}
@@ -148,6 +149,8 @@ def study_settings(cfg: Any) -> dict[str, Any]:
     settings = plain(cfg)
     for key in ("seeds", "out_dir", "hydra", "alpha", "robot_minutes_per_trial", "threads"):
         settings.pop(key, None)
+    if not settings.get("task_from_s"):  # the default: studies recorded before the setting existed still resume
+        settings.pop("task_from_s", None)
     return json.loads(json.dumps(settings, default=str))
 
 
