@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dcm.data.inspect import force_step_change, main, within_demo_spread
+from dcm.data.inspect import approach_share, force_step_change, main, within_demo_spread
 
 
 def test_inspect_summary_and_plots(tiny_dataset_path: Path, tmp_path: Path, capsys) -> None:
@@ -16,6 +16,7 @@ def test_inspect_summary_and_plots(tiny_dataset_path: Path, tmp_path: Path, caps
     text = capsys.readouterr().out
     assert "trajectories 15 (0 failed), demos 5" in text and "horizon H=40" in text
     assert "train         9      3" in text and "F_obs   Fz_N" in text and "force step change" in text
+    assert "the approach (each demo's approach_s):" in text
     assert traj_png.stat().st_size > 10_000 and demo_png.stat().st_size > 10_000
     assert main([str(tmp_path / "missing.h5")]) == 1
 
@@ -33,3 +34,15 @@ def test_force_step_change_is_the_mean_jump_of_the_force_vector() -> None:
     wrench[1, :, 0], wrench[1, :, 1] = np.arange(5) * 3.0, np.arange(5) * 4.0  # a 5 N ramp per step
     wrench[2, :, 3:] = 100.0 * np.arange(5)[:, None]  # torques do not count
     assert force_step_change(wrench) == 3.0  # median of 3, 5 and 0
+
+
+def test_approach_share_when_the_touch_down_decides_the_ranking() -> None:
+    """Four trials of one demo: the touch-down errs 4, 3, 2, 1 N, the wipe after it 0.1, 0.2, 0.3, 0.4 N."""
+    F_demo, F_obs = np.zeros((4, 10, 6)), np.zeros((4, 10, 6))
+    F_obs[:, 1, 2] = [4.0, 3.0, 2.0, 1.0]
+    F_obs[:, 2:, 2] = np.array([0.1, 0.2, 0.3, 0.4])[:, None]
+    share, rho = approach_share(F_obs, F_demo, np.full(4, 2), np.zeros(4, int))
+    shares = np.array([16 / 16.08, 9 / 9.32, 4 / 4.72, 1 / 2.28])
+    assert np.isclose(share, np.median(shares)) and np.isclose(rho, -1.0)  # the whole-demo L_task orders the trials backwards
+    _, same = approach_share(F_obs, F_demo, np.zeros(4, int), np.zeros(4, int))  # no approach: the same ranking
+    assert np.isclose(same, 1.0)

@@ -48,6 +48,27 @@ def force_step_change(wrench: np.ndarray) -> float:
     return float(np.median(steps.mean(axis=1)))
 
 
+def approach_share(F_obs: np.ndarray, F_demo: np.ndarray, approach_steps: np.ndarray, demo_ids: np.ndarray
+                   ) -> tuple[float, float]:
+    """How much of L_task the demo's approach (descent and touch-down) decides, for trajectories (N, H, 6).
+
+    Returns the median over trajectories of the share of the squared force error in each one's first
+    ``approach_steps`` steps, and the median over demos (of >= 3 trials) of the within-demo Spearman between
+    L_task and L_task after the approach: near 1, the approach does not change the ranking; near 0, the
+    ranking is the touch-down's (docs/results.md, "The touch-down").
+    """
+    from scipy.stats import spearmanr
+
+    err = ((np.asarray(F_obs, np.float64)[..., :3] - np.asarray(F_demo, np.float64)[..., :3]) ** 2).sum(-1)
+    after = np.arange(err.shape[1])[None, :] >= np.asarray(approach_steps)[:, None]
+    total = err.sum(1)
+    share = np.where(total > 0, (err * ~after).sum(1) / np.where(total > 0, total, 1.0), 0.0)
+    whole, wipe = np.sqrt(err.mean(1)), np.sqrt((err * after).sum(1) / np.maximum(after.sum(1), 1))
+    rhos = [spearmanr(whole[sel], wipe[sel]).statistic for d in np.unique(demo_ids)
+            if (sel := demo_ids == d).sum() >= 3 and np.ptp(whole[sel]) > 0 and np.ptp(wipe[sel]) > 0]
+    return float(np.median(share)), float(np.median(rhos)) if rhos else float("nan")
+
+
 def _packages(packages: dict[str, str] | None) -> str:
     if not packages:
         return "unrecorded package versions (a file from before they were recorded)"
@@ -90,6 +111,12 @@ def summarize(path: Path) -> str:
         lines.append(f"  force step change, mean |dF| per control step over the force axes, median over trajectories: "
                      f"F_obs {force_step_change(everything.arrays['F_obs'][ok]):.3f} N, "
                      f"F_demo {force_step_change(everything.arrays['F_demo'][ok]):.3f} N")
+        steps = np.array([round(float((m.get("demo") or {}).get("approach_s", 0.0)) * everything.control_hz)
+                          for m in everything.meta])[ok]
+        share, rho = approach_share(everything.arrays["F_obs"][ok], everything.arrays["F_demo"][ok], steps,
+                                    everything.demo_ids[ok])
+        lines.append(f"  the approach (each demo's approach_s): {share:.0%} of a trajectory's squared force error, "
+                     f"median; within a demo, Spearman(L_task, L_task after the approach) {rho:.2f}, median")
     # group failure reasons by their wording (numbers masked), keep one full example each
     failures = [str(m.get("failure_reason", "")) for m, bad in zip(everything.meta, failed) if bad]
     kinds: dict[str, list[str]] = {}
