@@ -43,6 +43,7 @@ def test_approach_share_when_the_touch_down_decides_the_ranking() -> None:
     F_obs[:, 2:, 2] = np.array([0.1, 0.2, 0.3, 0.4])[:, None]
     share, rho = approach_share(F_obs, F_demo, np.full(4, 2), np.zeros(4, int))
     shares = np.array([16 / 16.08, 9 / 9.32, 4 / 4.72, 1 / 2.28])
-    assert np.isclose(share, np.median(shares)) and np.isclose(rho, -1.0)  # the whole-demo L_task orders the trials backwards
+    # the whole-demo L_task orders the trials backwards
+    assert np.isclose(share, np.median(shares)) and np.isclose(rho, -1.0)
     _, same = approach_share(F_obs, F_demo, np.zeros(4, int), np.zeros(4, int))  # no approach: the same ranking
     assert np.isclose(same, 1.0)

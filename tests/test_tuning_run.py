@@ -150,7 +150,8 @@ def test_task_from_s_scores_every_tuner_after_the_approach(tiny_checkpoint: Path
     trial = simulator.rollout(recorded, stiffness)
     after = float(task_loss(trial.force_obs[window], recorded.force_demo[window]))
     assert solution["validated"]["L_task_N"] == pytest.approx(after) and after != pytest.approx(trial.L_task)
-    assert SimulatorObjective(simulator, recorded, skill)(phases)[0, 0] == pytest.approx(after)  # the robot-based search
+    robot_based = SimulatorObjective(simulator, recorded, skill)
+    assert robot_based(phases)[0, 0] == pytest.approx(after)
     model = load_model(tiny_checkpoint)
     inputs = (recorded.x_demo, recorded.force_demo, simulator.attractor(recorded, stiffness), stiffness)
     torch.manual_seed(0)
@@ -266,7 +267,8 @@ def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid():
     override = message.split("were: ")[1].split(" (or")[0]
     assert override.startswith("'demo.bowl={") and "hfield_res:192" in override
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):  # the override, as tune.py reads it
-        cfg = compose("tune", overrides=["demo=wavelike", "demo.duration_s=12.0", "+demo.lead=true", override.strip("'")])
+        cfg = compose("tune", overrides=["demo=wavelike", "demo.duration_s=12.0", "+demo.lead=true",
+                                         override.strip("'")])
     fine = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo))
     assert fine.bowl.hfield_res == 192 and fine.bowl.rim_radius_m == coarse.bowl.rim_radius_m
     assert recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", fine) is None

@@ -48,7 +48,8 @@ def read_skills(path: str | Path, names: list[str]) -> np.ndarray:
 
 @torch.no_grad()
 def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None = None, seed: int = 0,
-                   skills: np.ndarray | None = None, from_step: int = 0) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+                   skills: np.ndarray | None = None, from_step: int = 0
+                   ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """Sample forces for every trajectory of ``dataset`` and compute the metrics.
 
     ``skills`` (N,) labels trajectories for the within-skill correlations (None leaves them NaN).
