@@ -247,3 +247,23 @@ def test_demo_lead_reaches_every_spec_only_when_set() -> None:
     assert plan_demos({**preset, "demo_lead": True}, 0)[0].spec["lead"] is True
     with pytest.raises(PresetError, match="demo_lead = 'yes'"):
         plan_demos({**preset, "demo_lead": "yes"}, 0)
+
+
+def test_demo_hover_reaches_every_spec_only_when_set_and_names_the_recording() -> None:
+    """demo_hover_m: 0 starts every approach resting on the bowl (no touch-down impact); tune.py then names
+    the override that records a new skill the same way."""
+    from dcm.data.presets import PresetError, plan_demos
+    from dcm.data.recording import recording
+    from dcm.sim.demos import DemoSpec
+
+    preset = {"name": "p", "skills": [{"name": "spiral", "split": "train", "n_trials": 2,
+                                       "spec": {"family": "spiral", "press_m": 0.01}}]}
+    assert "hover_m" not in plan_demos(preset, 0)[0].spec and recording(preset).hover_m is None
+    resting = {**preset, "demo_hover_m": 0.0}
+    spec = DemoSpec.from_dict(plan_demos(resting, 0)[0].spec)
+    start = spec.start_pose(20.0)
+    assert spec.hover_m == 0.0 and start[2] == pytest.approx(spec.bowl.height(*start[:2]))
+    assert recording(resting).hover_m == 0.0 and "approaching from 0 m above the bowl" in recording(resting).describe()
+    for bad in ("low", -0.01, 0.5):
+        with pytest.raises(PresetError, match=f"demo_hover_m = {bad!r} must be a number in"):
+            plan_demos({**preset, "demo_hover_m": bad}, 0)

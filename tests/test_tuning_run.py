@@ -273,3 +273,16 @@ def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid():
     assert fine.bowl.hfield_res == 192 and fine.bowl.rim_radius_m == coarse.bowl.rim_radius_m
     assert recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", fine) is None
     assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", fine) is None  # its bowls keep their own grid
+
+
+def test_tune_names_the_approach_height_of_a_preset_that_sets_one(monkeypatch: pytest.MonkeyPatch):
+    import dcm.data.recording as rec
+
+    monkeypatch.setattr(rec, "preset_recording", lambda name: rec.Recording(12.0, True, None, 0.0))
+    spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
+    hovering = DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True})
+    message = recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", hovering)
+    assert message.endswith("++demo.hover_m=0 (or those fields of demo_file)")
+    assert f"approaching from {hovering.hover_m:g} m above the bowl" in message
+    assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt",
+                              DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True, "hover_m": 0.0})) is None

@@ -122,6 +122,12 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
         raise PresetError(f"dataset {dataset.get('name')!r}: demo_lead = {demo_lead!r} must be true or false")
     if demo_lead:  # only when set: the specs of presets without it stay byte-identical
         defaults["lead"] = True
+    hover = dataset.get("demo_hover_m")
+    if hover is not None:  # only when set, as demo_lead
+        if isinstance(hover, bool) or not isinstance(hover, (int, float)) or not 0.0 <= hover <= 0.1:
+            raise PresetError(f"dataset {dataset.get('name')!r}: demo_hover_m = {hover!r} must be a number in "
+                              "[0, 0.1] m")
+        defaults["hover_m"] = float(hover)
     groups: list[tuple[str, str, int, list[dict[str, Any]]]] = []
     if waypoints is not None and waypoints.get("waypoints"):
         spec = {"family": "waypoints", "waypoints": str(Path(str(waypoints["waypoints"])).expanduser().resolve()), "bowl": dict(waypoints["bowl"])}

@@ -17,17 +17,20 @@ class Recording(NamedTuple):
     duration_s: float
     lead: bool
     bowl_grid: int | None = None  # the preset's bowl.hfield_res; None: each bowl keeps its own (80-112)
+    hover_m: float | None = None  # the preset's demo_hover_m; None: DemoSpec's default (0.01 m)
 
     def describe(self) -> str:
         grid = "" if self.bowl_grid is None else f" on a {self.bowl_grid} x {self.bowl_grid} bowl grid"
-        return f"{self.duration_s:g} s demos {'with' if self.lead else 'without'} a leading demonstrator{grid}"
+        hover = "" if self.hover_m is None else f", approaching from {self.hover_m:g} m above the bowl"
+        return f"{self.duration_s:g} s demos {'with' if self.lead else 'without'} a leading demonstrator{grid}{hover}"
 
 
 def recording(dataset_config: Mapping[str, Any]) -> Recording:
     """The recording of a dataset preset (``conf/dataset/*.yaml``; DemoSpec's defaults where it says nothing)."""
     grid = (dataset_config.get("bowl") or {}).get("hfield_res")
+    hover = dataset_config.get("demo_hover_m")
     return Recording(float(dataset_config.get("duration_s", 8.0)), bool(dataset_config.get("demo_lead", False)),
-                     None if grid is None else int(grid))
+                     None if grid is None else int(grid), None if hover is None else float(hover))
 
 
 def preset_recording(name: str | None) -> Recording | None:

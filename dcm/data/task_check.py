@@ -190,6 +190,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--n-random", type=int, default=20)
     parser.add_argument("--duration", type=float, default=None, help="override the demos' duration [s]")
     parser.add_argument("--demo-lead", action="store_true", help="record the demos with a leading demonstrator")
+    parser.add_argument("--demo-hover-m", type=float, default=None,
+                        help="start the demos' approach this high above the bowl [m] (0: resting on it)")
     parser.add_argument("--task-from-s", type=float, default=0.0,
                         help="count the force error from this time [s] on (1.0: without the demos' approach)")
     parser.add_argument("--seed", type=int, default=0)
@@ -199,6 +201,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     overrides = {"duration_s": args.duration} if args.duration is not None else {}
     if args.demo_lead:
         overrides["demo_lead"] = True
+    if args.demo_hover_m is not None:
+        overrides["demo_hover_m"] = args.demo_hover_m
     preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error, overrides)
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     embodiment = args.embodiment or preset["embodiment"]
@@ -216,7 +220,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                                              args.task_from_s)
     result = {"dataset": args.dataset, "splits": args.splits, "embodiment": embodiment, "damping": args.damping,
               "duration_s": preset.get("duration_s", 8.0), "demo_lead": bool(preset.get("demo_lead", False)),
-              "task_from_s": args.task_from_s,
+              "task_from_s": args.task_from_s, "demo_hover_m": preset.get("demo_hover_m"),
               "seconds": time.perf_counter() - start, "summary": summarise(skills), "skills": skills}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -251,9 +251,12 @@ def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
     if trained.bowl_grid is not None and grid != trained.bowl_grid:
         name = {"name": f"{spec.bowl.name}_{trained.bowl_grid}"} if spec.bowl.name else {}
         fixes.append(bowl_override(spec.bowl, hfield_res=trained.bowl_grid, **name))
+    if trained.hover_m is not None and float(spec.hover_m) != trained.hover_m:
+        fixes.append(f"++demo.hover_m={trained.hover_m:g}")
     if not fixes:
         return None
-    here = Recording(float(spec.duration_s), bool(spec.lead), None if trained.bowl_grid is None else grid)
+    here = Recording(float(spec.duration_s), bool(spec.lead), None if trained.bowl_grid is None else grid,
+                     None if trained.hover_m is None else float(spec.hover_m))
     return (f"ckpt={ckpt} learned from {trained.describe()} (dataset {preset}); this skill's demo: "
             f"{here.describe()}. To record it as the model's training demos were: {' '.join(fixes)} "
             "(or those fields of demo_file)")
