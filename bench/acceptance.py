@@ -7,8 +7,8 @@ For each dataset split it scores every shipped force model (with its own sampler
 what tune.py uses), every shipped stiffness ridge, and copy-F_demo, and writes reports/acceptance.md. A
 predictor is scored only on files whose demos were recorded as its training demos were (duration, leading
 demonstrator, the bowl grid a preset sets for all its bowls: the preset its card names); one trained on a
-dataset without a preset in conf/dataset is scored on every file. The target is the DCM's within-skill R >= 0.85; the script prints whether it is met
-and never fails on it.
+dataset without a preset in conf/dataset is scored on every file. The target is the DCM's within-skill
+R >= 0.85; the script prints whether it is met and never fails on it.
 """
 
 from __future__ import annotations
