@@ -62,6 +62,16 @@ def test_panda_apparent_mass_matches_the_model(panda_flat: Simulator) -> None:
     np.testing.assert_allclose(type(emb).apparent_mass, np.diag(lam), rtol=0.35)
 
 
+@pytest.mark.parametrize(("domain", "named"), [("{\"joint_friction\": 0.5}", "joint_friction"),
+                                               ("{\"joint_frictionloss\": ", "not a JSON mapping"),
+                                               ("rough", "'rough'")])
+def test_task_check_bad_domain_is_named(domain: str, named: str, capsys) -> None:
+    with pytest.raises(SystemExit):
+        task_check.main(["--dataset", "tiny", "--splits", "valid", "--max-skills", "1", "--domain", domain])
+    err = capsys.readouterr().err
+    assert "--domain" in err and named in err
+
+
 def test_phase_additivity_known_answers() -> None:
     err_a, err_b = np.full(10, 2.0), np.full(10, 1.0)
     bounds = np.array([0, 5, 10])
@@ -90,6 +100,14 @@ def test_task_check_on_one_skill(tmp_path) -> None:
     (after,) = wipe["skills"].values()
     assert wipe["task_from_s"] == 0.5 and np.isfinite(after["sweep_L_task"]).all()
     assert after["sweep_L_task"] != pytest.approx(skill["sweep_L_task"])
+    # in another domain: joint friction the attractor does not know changes every rollout's force
+    rough = task_check.main(["--dataset", "tiny", "--splits", "valid", "--max-skills", "1", "--n-random", "0",
+                             "--embodiment", "panda", "--demo-lead", "--out", str(out),
+                             "--domain", '{"name": "rough", "joint_frictionloss": 0.5}'])
+    (in_rough,) = rough["skills"].values()
+    assert rough["domain"]["name"] == "rough" and rough["domain"]["joint_frictionloss"] == 0.5
+    assert saved["domain"]["name"] == "nominal"
+    assert in_rough["sweep_L_task"] != pytest.approx(skill["sweep_L_task"])
     sim = Simulator("tool", BowlSpec())
     demo = sim.record_demo(DemoSpec(family="spiral", press_m=0.01, duration_s=2.0, approach_s=0.4))
     flat = sim.constant_stiffness(demo, 600.0)

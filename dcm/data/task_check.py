@@ -173,6 +173,18 @@ def preset_skills(dataset: str, splits: list[str], seed: int, max_skills: int | 
     return preset, jobs
 
 
+def parse_domain(text: str, error: Callable[[str], Any]) -> Any:
+    """``--domain``: a DomainSpec preset name or a JSON mapping of its fields; ``error`` names what is wrong."""
+    from dcm.sim.domain import DomainSpec, DomainSpecError
+
+    try:
+        return DomainSpec.resolve(json.loads(text) if text.lstrip().startswith("{") else text)
+    except json.JSONDecodeError as err:
+        error(f"--domain {text!r} is not a JSON mapping: {err}")
+    except DomainSpecError as err:
+        error(f"--domain: {err}")
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     from omegaconf import OmegaConf
     from tqdm import tqdm
@@ -186,6 +198,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--splits", nargs="+", default=["valid", "test"])
     parser.add_argument("--embodiment", default=None, help="default: the preset's")
     parser.add_argument("--damping", default="critical", choices=["critical", "unit"])
+    parser.add_argument("--domain", default=None,
+                        help="default: the preset's; a domain preset name (realistic) or a JSON mapping of "
+                             "DomainSpec fields, e.g. '{\"joint_frictionloss\": 0.5}'")
     parser.add_argument("--max-skills", type=int, default=None, help="first N skills of the chosen splits")
     parser.add_argument("--n-random", type=int, default=20)
     parser.add_argument("--duration", type=float, default=None, help="override the demos' duration [s]")
@@ -204,6 +219,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.demo_hover_m is not None:
         overrides["demo_hover_m"] = args.demo_hover_m
     preset, jobs = preset_skills(args.dataset, args.splits, args.seed, args.max_skills, parser.error, overrides)
+    domain = parse_domain(args.domain, parser.error) if args.domain is not None else DomainSpec.resolve(preset["domain"])
     space = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "stiffness" / "default.yaml"))
     embodiment = args.embodiment or preset["embodiment"]
     sims: dict[str, Simulator] = {}
@@ -214,11 +230,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         spec = DemoSpec.from_dict(job.spec, where=f"{args.dataset} skill {job.index}")
         key = json.dumps(job.spec.get("bowl", {}), sort_keys=True)
         if key not in sims:
-            sims = {key: Simulator(embodiment, spec.bowl, DomainSpec.resolve(preset["domain"]), seed=args.seed,
+            sims = {key: Simulator(embodiment, spec.bowl, domain, seed=args.seed,
                                    damping=args.damping)}
         skills[f"{job.skill}_{job.index:03d}"] = check_skill(sims[key], spec, args.n_random, space, rng,
                                                              args.task_from_s)
     result = {"dataset": args.dataset, "splits": args.splits, "embodiment": embodiment, "damping": args.damping,
+              "domain": domain.to_dict(),
               "duration_s": preset.get("duration_s", 8.0), "demo_lead": bool(preset.get("demo_lead", False)),
               "task_from_s": args.task_from_s, "demo_hover_m": preset.get("demo_hover_m"),
               "seconds": time.perf_counter() - start, "summary": summarise(skills), "skills": skills}
