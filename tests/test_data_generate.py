@@ -234,6 +234,13 @@ def test_diverse_contact_fine_is_the_slow_preset_on_a_finer_bowl_grid() -> None:
         assert f.spec == {**s.spec, "bowl": {**s.spec["bowl"], "hfield_res": 192}}
 
 
+def test_diverse_contact_rest_is_the_fine_preset_approaching_from_the_bowl() -> None:
+    fine, rest = _plan("diverse_contact_fine"), _plan("diverse_contact_rest")
+    assert [(j.skill, j.trial_splits, j.seed) for j in rest] == [(j.skill, j.trial_splits, j.seed) for j in fine]
+    for f, r in zip(fine, rest):
+        assert r.spec == {**f.spec, "hover_m": 0.0}
+
+
 def test_extra_skills_must_be_a_mapping() -> None:
     from dcm.data.presets import PresetError, plan_demos
 
