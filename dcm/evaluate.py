@@ -47,13 +47,13 @@ def score(predictor: Any, data: TrajectoryDataset, skills: np.ndarray | None, n_
         return evaluate_model(predictor, data, n_samples, seed, skills, from_step)[0]
     cond, F_obs = data.cond.numpy(), data.target.numpy()
     x_demo, F_demo, x_attr, K = (cond[..., cond_slice(f)] for f in ("x_demo", "F_demo", "x_attr", "K"))
-    window = slice(int(from_step), None)
     if isinstance(predictor, ForcePredictor):
         F_pred, _ = predictor.predict_forces(x_demo, F_demo, x_attr, K, n_samples=n_samples)
+        window = slice(int(from_step), None)
         metrics = force_prediction_metrics(np.asarray(F_pred)[:, window], F_obs[:, window], F_demo[:, window],
                                            skills)[0]
     else:  # a stiffness ridge predicts the L_task of the window it was fitted on (checked by the caller)
-        L_true = np.asarray(task_loss(F_obs[:, window].astype(np.float64), F_demo[:, window].astype(np.float64)))
+        L_true = np.asarray(task_loss(F_obs.astype(np.float64), F_demo.astype(np.float64), from_step))
         metrics = ranking_metrics(predict_task_loss(predictor, x_demo, F_demo, x_attr, K), L_true, skills)
     return {"R": metrics["R_pooled"], **metrics}
 

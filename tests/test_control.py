@@ -127,3 +127,8 @@ def test_the_scored_window_starts_after_the_approach():
     force_demo[0, 10:, 2] = force_obs[0, 11:, 2] = 8.0
     start = task_window_start(1.0, 20.0, 240)
     assert task_loss(force_obs, force_demo)[0] > 3 * task_loss(force_obs[:, start:], force_demo[:, start:])[0]
+    # the window as task_loss's own argument: the same as slicing the time axis, for one trajectory or a batch
+    np.testing.assert_allclose(task_loss(force_obs, force_demo, start), [0.1 * np.sqrt(2 / 3)])
+    np.testing.assert_allclose(task_loss(force_obs[0], force_demo[0], start),
+                               task_loss(force_obs[0, start:], force_demo[0, start:]))
+    assert task_loss(force_obs, force_demo, 0)[0] == task_loss(force_obs, force_demo)[0]

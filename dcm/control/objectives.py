@@ -10,12 +10,13 @@ from typing import Any
 TASK_LOSSES = ("of_mean", "over_samples")
 
 
-def task_loss(force_obs: Any, force_demo: Any) -> Any:
+def task_loss(force_obs: Any, force_demo: Any, from_step: int = 0) -> Any:
     """L_task [N]: RMSE of the observed against the demonstrated contact force over time and the 3 force axes.
 
-    Torques are left out because their unit differs. Leading batch dimensions are kept.
+    Torques are left out because their unit differs. Leading batch dimensions are kept; time is the second
+    to last axis. ``from_step``: count the steps from this one on (:func:`task_window_start`).
     """
-    err = (force_obs[..., :3] - force_demo[..., :3]) ** 2
+    err = (force_obs[..., from_step:, :3] - force_demo[..., from_step:, :3]) ** 2
     return err.mean(-1).mean(-1) ** 0.5
 
 

@@ -64,7 +64,7 @@ def check_skill(sim: Any, spec: Any, n_random: int, space: dict[str, Any], rng: 
         return err
 
     def loss(trial: Any) -> float:
-        return float("inf") if trial.failed else float(task_loss(trial.force_obs[start:], demo.force_demo[start:]))
+        return float("inf") if trial.failed else float(task_loss(trial.force_obs, demo.force_demo, start))
 
     sweep: dict[float, Any] = {}
     for k in SWEEP_NPM:

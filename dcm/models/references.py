@@ -171,11 +171,11 @@ class StiffnessRegression:
         P = int(n_phases) if n_phases is not None else dataset_phases(loaded)
         rows = slice(None) if index is None else np.asarray(index)
         try:
-            window = slice(task_window_start(task_from_s, loaded.control_hz, loaded.horizon), None)
+            start = task_window_start(task_from_s, loaded.control_hz, loaded.horizon)
         except ValueError as err:
             raise ReferenceError(f"dataset {path}: {err}") from None
-        L = np.asarray(task_loss(loaded.arrays["F_obs"][rows][:, window].astype(np.float64),
-                                 loaded.arrays["F_demo"][rows][:, window].astype(np.float64)))
+        L = np.asarray(task_loss(loaded.arrays["F_obs"][rows].astype(np.float64),
+                                 loaded.arrays["F_demo"][rows].astype(np.float64), start))
         info = {"dataset": _dataset_identity(Path(path), loaded.attrs), "split": split, "group_key": GROUP_KEY,
                 "phase_method": _phase_method(loaded.attrs)}
         if task_from_s:  # only when set: the fit records of whole-trajectory fits stay as they were

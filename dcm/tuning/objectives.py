@@ -33,8 +33,7 @@ class Skill:
         """A simulated trial's L_task [N] over the scored window."""
         if self.task_from_step == 0:
             return float(trial.L_task)
-        window = slice(self.task_from_step, None)
-        return float(task_loss(trial.force_obs[window], self.force_demo[window]))
+        return float(task_loss(trial.force_obs, self.force_demo, self.task_from_step))
 
     def schedules(self, proposals: np.ndarray) -> np.ndarray:
         """(B, P, 3) per-phase stiffness in N/m -> (B, H, 6) schedules."""
