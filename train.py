@@ -57,7 +57,7 @@ log = logging.getLogger("dcm.train")
 
 # Fields a fine-tuning run may change; everything else (net, T, schedule, normaliser) comes from init_from.
 FINETUNE_FIELDS = ("lr", "weight_decay", "warmup_steps", "lr_schedule", "ema_decay", "eval_batch_size",
-                   "sampler", "sampling_steps", "n_samples")
+                   "sampler", "sampling_steps", "n_samples", "task_weight", "task_from_s")
 
 
 class TrainConfigError(ValueError):
@@ -88,7 +88,8 @@ def build_datamodule(cfg: DictConfig, path: Path) -> DCMDataModule:
     d = cfg.data
     return DCMDataModule(path, stage=cfg.stage, usage_rate=cfg.usage_rate, seed=cfg.seed,
                          batch_size=d.batch_size, eval_batch_size=d.eval_batch_size, num_workers=d.num_workers,
-                         expect_control_hz=d.get("expect_control_hz"), n_eval=d.get("n_eval"))
+                         expect_control_hz=d.get("expect_control_hz"), n_eval=d.get("n_eval"),
+                         skill_group=d.get("skill_group", 0))
 
 
 def init_checkpoint(cfg: DictConfig) -> Path:
@@ -123,6 +124,13 @@ def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
     model = new_model(cfg, data_spec)
     model.fit_normalizers(*dm.train_arrays())
     return model
+
+
+def check_task_batches(model: ForceModel, dm: DCMDataModule) -> None:
+    """``model.task_weight`` > 0 compares trials of one skill within a batch, so it needs grouped batches."""
+    if model.cfg.task_weight > 0 and dm.skill_group < 2:
+        raise TrainConfigError(f"model.task_weight={model.cfg.task_weight} compares trials of one skill within a "
+                               f"batch; set data.skill_group to 2 or more (got {dm.skill_group})")
 
 
 def new_model(cfg: DictConfig, data_spec: dict[str, Any] | None = None) -> ForceModel:
@@ -165,6 +173,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if cfg.test_after_fit and _has_split(path, "test"):
         dm.setup("test")  # validated now: a NaN in the test split must not surface after the whole fit
     model = build_model(cfg, dm)
+    check_task_batches(model, dm)
 
     checkpoint = ModelCheckpoint(dirpath=ckpt_dir, monitor=cfg.checkpoint.monitor, mode=cfg.checkpoint.mode,
                                  save_top_k=int(cfg.checkpoint.save_top_k), save_last=False,

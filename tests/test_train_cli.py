@@ -115,3 +115,15 @@ def test_bad_invocations_fail_with_clear_messages(sweep: Path, tiny_dataset_path
 
     with pytest.raises(SystemExit, match="no split 'nosuch'"):
         evaluate_main([f"ckpt={ckpt}", f"dataset={tiny_dataset_path}", "split=nosuch"])
+
+
+def test_the_within_skill_task_term_trains_from_the_cli(tiny_dataset_path: Path, tmp_path: Path) -> None:
+    common = ["model=baseline", "data=path", f"data.path={tiny_dataset_path}", *TINY, "model.task_weight=10",
+              "model.task_from_s=0.5", "test_after_fit=false"]
+    proc = _run([str(REPO / "train.py"), *common, f"hydra.run.dir={tmp_path / 'ungrouped'}"], cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "data.skill_group" in proc.stderr.strip().splitlines()[-1]
+    _run([str(REPO / "train.py"), *common, "data.skill_group=3", f"hydra.run.dir={tmp_path / 'grouped'}"], cwd=tmp_path)
+    summary = json.loads((tmp_path / "grouped" / "summary.json").read_text())
+    assert summary["global_step"] > 0 and Path(summary["best_checkpoint"]).exists()
+    config = yaml.safe_load((tmp_path / "grouped" / "config.yaml").read_text())
+    assert config["model"]["task_weight"] == 10 and config["data"]["skill_group"] == 3

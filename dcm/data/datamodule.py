@@ -5,7 +5,8 @@ Batches are dicts of raw, un-normalised float32 tensors in physical units:
 * ``cond``   (B, H, 24): per-step conditions ``x_demo(6) | F_demo(6) | x_attr(6) | K(6)`` —
   pose [m, rad] in the bowl frame, wrench [N, N·m], attractor pose [m, rad], stiffness diagonal [N/m, N·m/rad]
   (channel names: :func:`dcm.data.schema.cond_channel_names`);
-* ``target`` (B, H, 6): the observed contact wrench ``F_obs`` [N, N·m].
+* ``target`` (B, H, 6): the observed contact wrench ``F_obs`` [N, N·m];
+* ``skill``  (B,): the trial's ``demo_id`` (-1 where the file has none), the skill whose schedules the tuner ranks.
 
 Normalisation to [-1, 1] lives in the model (its statistics come from :meth:`DCMDataModule.train_arrays`),
 so that checkpoints carry it and fine-tuning keeps the pre-training statistics.
@@ -19,7 +20,7 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Sampler
 
 from dcm.data.schema import (
     CHANNELS,
@@ -55,35 +56,73 @@ def dataset_channels(dataset: LoadedDataset) -> tuple[list[str], list[str]]:
 
 
 class TrajectoryDataset(Dataset):
-    """(cond, target) pairs of whole trajectories, already stacked as tensors."""
+    """(cond, target, skill) of whole trajectories, already stacked as tensors."""
 
-    def __init__(self, cond: np.ndarray, target: np.ndarray, names: list[str], L_task: np.ndarray) -> None:
+    def __init__(self, cond: np.ndarray, target: np.ndarray, names: list[str], L_task: np.ndarray,
+                 skills: np.ndarray | None = None) -> None:
         self.cond = torch.as_tensor(cond, dtype=torch.float32)
         self.target = torch.as_tensor(target, dtype=torch.float32)
         self.names = list(names)
         self.L_task = np.asarray(L_task, dtype=np.float64)
+        self.skills = torch.as_tensor(np.full(len(self.names), -1) if skills is None else skills, dtype=torch.long)
 
     @classmethod
     def from_loaded(cls, dataset: LoadedDataset, index: np.ndarray | None = None) -> "TrajectoryDataset":
         cond = stack_conditions(dataset.arrays)
         target = np.asarray(dataset.arrays[TARGET_FIELD], dtype=np.float32)
-        names, L_task = dataset.names, dataset.L_task
+        names, L_task, skills = dataset.names, dataset.L_task, dataset.demo_ids
         if index is not None:
-            cond, target, L_task = cond[index], target[index], L_task[index]
+            cond, target, L_task, skills = cond[index], target[index], L_task[index], skills[index]
             names = [names[i] for i in index]
-        return cls(cond, target, names, L_task)
+        return cls(cond, target, names, L_task, skills)
 
     def __len__(self) -> int:
         return self.cond.shape[0]
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        return {"cond": self.cond[i], "target": self.target[i]}
+        return {"cond": self.cond[i], "target": self.target[i], "skill": self.skills[i]}
 
     def subset(self, n: int | None) -> "TrajectoryDataset":
         """The first ``n`` trajectories (all when ``n`` is None or larger): a fixed evaluation set."""
         if n is None or n >= len(self):
             return self
-        return TrajectoryDataset(self.cond[:n].numpy(), self.target[:n].numpy(), self.names[:n], self.L_task[:n])
+        return TrajectoryDataset(self.cond[:n].numpy(), self.target[:n].numpy(), self.names[:n], self.L_task[:n],
+                                 self.skills[:n].numpy())
+
+
+class SkillGroupBatchSampler(Sampler[list[int]]):
+    """Training batches made of whole groups: ``group_size`` trials of one skill each.
+
+    A loss that compares one skill's trials (the model's ``task_weight``) needs several of them in a batch;
+    a plain shuffle of 312 skills x 20 trials puts two of one skill in a batch of 32 about once. Every epoch
+    shuffles each skill's trials, cuts them into groups (a skill's last group may be smaller; a trial without
+    a skill, -1, is a group of its own), shuffles the groups and deals ``batch_size // group_size`` of them
+    per batch. Every trial is seen once per epoch; the draws come from ``generator``.
+    """
+
+    def __init__(self, skills: torch.Tensor, batch_size: int, group_size: int, generator: torch.Generator) -> None:
+        if not 1 <= int(group_size) <= int(batch_size):
+            raise DataModuleError(f"skill_group must be in 1..batch_size={batch_size}, got {group_size}")
+        skills = torch.as_tensor(skills, dtype=torch.long)
+        known = skills[skills >= 0]
+        self.by_skill = [torch.nonzero(skills == s).flatten() for s in torch.unique(known)]
+        self.by_skill += [i.reshape(1) for i in torch.nonzero(skills < 0).flatten()]
+        self.group_size = int(group_size)
+        self.groups_per_batch = int(batch_size) // self.group_size
+        self.generator = generator
+        n_groups = sum(-(-len(idx) // self.group_size) for idx in self.by_skill)
+        self.n_batches = -(-n_groups // self.groups_per_batch)
+
+    def __len__(self) -> int:
+        return self.n_batches
+
+    def __iter__(self):
+        groups: list[torch.Tensor] = []
+        for idx in self.by_skill:
+            groups.extend(idx[torch.randperm(len(idx), generator=self.generator)].split(self.group_size))
+        order = torch.randperm(len(groups), generator=self.generator).tolist()
+        for start in range(0, len(order), self.groups_per_batch):
+            yield torch.cat([groups[g] for g in order[start:start + self.groups_per_batch]]).tolist()
 
 
 def usage_index(n_total: int, usage_rate: float, seed: int) -> np.ndarray:
@@ -105,11 +144,14 @@ class DCMDataModule(L.LightningDataModule):
         seed: seed of the usage-rate subset.
         expect_control_hz: refuse a dataset recorded at another control rate (None accepts any).
         n_eval: trajectories of the valid/test split the metrics callback samples (None = all).
+        skill_group: 0 shuffles the training trials one by one; g > 0 deals them in groups of g trials of one
+            skill (:class:`SkillGroupBatchSampler`), which a model trained with ``task_weight`` > 0 needs.
+            Single-device only: a distributed sampler does not split these batches.
     """
 
     def __init__(self, path: str | Path, stage: str = "pretrain", usage_rate: float = 1.0, seed: int = 0,
                  batch_size: int = 64, eval_batch_size: int = 256, num_workers: int = 0,
-                 expect_control_hz: float | None = None, n_eval: int | None = 64) -> None:
+                 expect_control_hz: float | None = None, n_eval: int | None = 64, skill_group: int = 0) -> None:
         super().__init__()
         if stage not in STAGES:
             raise DataModuleError(f"stage must be one of {STAGES}, got {stage!r}")
@@ -120,6 +162,8 @@ class DCMDataModule(L.LightningDataModule):
             raise DataModuleError(f"batch_size must be >= 1, got {batch_size}")
         if n_eval is not None and int(n_eval) < 1:
             raise DataModuleError(f"n_eval must be >= 1 or None, got {n_eval}")
+        if not 0 <= int(skill_group) <= int(batch_size):
+            raise DataModuleError(f"skill_group must be 0 (off) or in 1..batch_size={batch_size}, got {skill_group}")
         self.path = Path(path)
         self.stage = stage
         self.usage_rate = usage_rate
@@ -129,10 +173,11 @@ class DCMDataModule(L.LightningDataModule):
         self.num_workers = int(num_workers)
         self.expect_control_hz = expect_control_hz
         self.n_eval = None if n_eval is None else int(n_eval)
+        self.skill_group = int(skill_group)
         # plain types only, so checkpoints stay loadable with torch.load(weights_only=True)
         self.save_hyperparameters({"path": str(self.path), "stage": stage, "usage_rate": usage_rate,
                                    "seed": self.seed, "batch_size": self.batch_size, "n_eval": self.n_eval,
-                                   "expect_control_hz": expect_control_hz})
+                                   "expect_control_hz": expect_control_hz, "skill_group": self.skill_group})
         self.splits: dict[str, TrajectoryDataset] = {}
         self.attrs: dict[str, Any] = {}
         self.cond_channels: list[str] = []
@@ -201,7 +246,15 @@ class DCMDataModule(L.LightningDataModule):
                           generator=generator, drop_last=False, persistent_workers=self.num_workers > 0)
 
     def train_dataloader(self) -> DataLoader:
-        return self._loader(self.split("train"), True, self.batch_size)
+        train = self.split("train")
+        if not self.skill_group:
+            return self._loader(train, True, self.batch_size)
+        if not bool((train.skills >= 0).any()):
+            raise DataModuleError(f"{self.path}: skill_group={self.skill_group} needs the trials' demo_id, "
+                                  "and this file's training trials have none")
+        sampler = SkillGroupBatchSampler(train.skills, self.batch_size, self.skill_group, self.shuffle_generator)
+        return DataLoader(train, batch_sampler=sampler, num_workers=self.num_workers,
+                          persistent_workers=self.num_workers > 0)
 
     def val_dataloader(self) -> DataLoader:
         return self._loader(self.split("valid"), False, self.eval_batch_size)

@@ -31,9 +31,11 @@ class Baseline(ForceModel):
         step = torch.zeros(cond_n.shape[0], dtype=torch.long, device=cond_n.device)
         return net(cond_n, zeros, step)
 
-    def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
-             generator: torch.Generator | None = None) -> torch.Tensor:
-        return torch.nn.functional.mse_loss(self._forward(net, cond_n), target_n)
+    def denoising_outputs(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+                          generator: torch.Generator | None = None, groups: torch.Tensor | None = None
+                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        pred = self._forward(net, cond_n)  # one pass: the output is the force estimate
+        return pred, target_n, pred
 
     def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
                           generator: torch.Generator | None = None) -> torch.Tensor:

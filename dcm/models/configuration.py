@@ -7,6 +7,7 @@ a checkpoint therefore reloads with nothing but its own file.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping
 
@@ -79,8 +80,16 @@ class ForceModelConfig:
     target: str = "absolute"  # absolute: F_obs | residual: F_obs - F_demo (F_demo added back on prediction)
     normalization: str = "minmax"  # minmax: train [min, max] -> [-1, 1] | zscore: mean ± 3 std -> [-1, 1]
     cond_encoding: str = "raw"  # raw (the paper's) | physical: x_attr - x_demo and log K (dcm.models.cond_encoding)
+    # weight of the within-skill L_task term added to the force loss (dcm.models.task_ranking; 0: off, the
+    # paper's loss). It compares trials of one skill, so the batches must hold several: data.skill_group > 1
+    task_weight: float = 0.0
+    task_from_s: float = 0.0  # that term's L_task counts from this second on (1.0: after the approach)
 
     def __post_init__(self) -> None:
+        if not (float(self.task_weight) >= 0.0 and math.isfinite(float(self.task_weight))):
+            raise ModelInputError(f"task_weight must be a finite number >= 0, got {self.task_weight}")
+        if not (float(self.task_from_s) >= 0.0 and math.isfinite(float(self.task_from_s))):
+            raise ModelInputError(f"task_from_s must be a finite number of seconds >= 0, got {self.task_from_s}")
         if self.target not in TARGETS:
             raise ModelInputError(f"target must be one of {TARGETS}, got {self.target!r}")
         if self.normalization not in NORMALIZATIONS:

@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 from dcm import __version__
-from dcm.control.objectives import TASK_LOSSES, task_loss, task_loss_over_samples
+from dcm.control.objectives import TASK_LOSSES, task_loss, task_loss_over_samples, task_window_start
 from dcm.models import diffusion
 from dcm.models.configuration import (
     CheckpointIncompatibleError,
@@ -37,6 +37,7 @@ from dcm.models.cond_encoding import encode_conditions
 from dcm.models.nets import build_score_net
 from dcm.data.schema import cond_slice
 from dcm.models.normalizer import ChannelNormalizer
+from dcm.models.task_ranking import within_skill_task_error
 
 COND_DIM = 24
 OUT_DIM = 6
@@ -159,9 +160,37 @@ class ForceModel(L.LightningModule):
         return self.ema_net if self.ema_net is not None else self.net
 
     # ------------------------------------------------------------------ the model-specific parts
-    def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
-             generator: torch.Generator | None = None) -> torch.Tensor:
+    def denoising_outputs(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+                          generator: torch.Generator | None = None, groups: torch.Tensor | None = None
+                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The net's training output, its target and the force estimate (normalised units) it implies; rows
+        sharing a label in ``groups`` share their random draws (:func:`diffusion.denoising_outputs`)."""
         raise NotImplementedError
+
+    def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+             generator: torch.Generator | None = None, cond: torch.Tensor | None = None,
+             groups: torch.Tensor | None = None) -> torch.Tensor:
+        """The force loss: MSE of the net's output against its target. With ``task_weight`` > 0, and the
+        batch's raw conditions ``cond`` and skill labels ``groups`` given, plus ``task_weight`` times the
+        within-skill L_task error of the implied force (:meth:`task_term`)."""
+        with_task = self.cfg.task_weight > 0 and cond is not None and groups is not None
+        output, target, estimate_n = self.denoising_outputs(net, cond_n, target_n, generator,
+                                                            groups if with_task else None)
+        loss = torch.nn.functional.mse_loss(output, target)
+        if with_task:
+            loss = loss + self.cfg.task_weight * self.task_term(cond, estimate_n, target_n, groups)
+        return loss
+
+    def task_term(self, cond: torch.Tensor, estimate_n: torch.Tensor, target_n: torch.Tensor,
+                  groups: torch.Tensor) -> torch.Tensor:
+        """Within-skill error of L_task (from ``cfg.task_from_s``) of the estimated against the true force,
+        in the normaliser's force units so that ``task_weight`` does not depend on the data's scale."""
+        F_demo = cond[..., _F_DEMO]
+        start = task_window_start(self.cfg.task_from_s, self.data_spec.control_hz, cond.shape[-2])
+        force_scale = self.target_norm.scale[:3].mean()
+        L_pred, L_true = (task_loss(self.force_from_target(cond, self.target_norm.unnormalize(value)), F_demo, start)
+                          for value in (estimate_n, target_n))
+        return within_skill_task_error(L_pred * force_scale, L_true * force_scale, groups)
 
     def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
                           generator: torch.Generator | None = None) -> torch.Tensor:
@@ -184,17 +213,21 @@ class ForceModel(L.LightningModule):
         """The training target in normalised units for raw conditions and F_obs."""
         return self.target_norm.normalize(self.model_target(cond, force))
 
+    def _batch_loss(self, net: nn.Module, batch: dict[str, torch.Tensor],
+                    generator: torch.Generator | None = None) -> torch.Tensor:
+        cond = batch["cond"]
+        return self.loss(net, self.normalized_cond(cond), self.normalized_target(cond, batch["target"]), generator,
+                         cond=cond, groups=batch.get("skill"))
+
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        loss = self.loss(self.net, self.normalized_cond(batch["cond"]),
-                         self.normalized_target(batch["cond"], batch["target"]))
+        loss = self._batch_loss(self.net, batch)
         self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=batch["cond"].shape[0])
         return loss
 
     def _eval_loss(self, batch: dict[str, torch.Tensor], batch_idx: int, prefix: str) -> torch.Tensor:
         # A fixed generator per batch makes the (noisy) diffusion loss comparable across epochs.
         gen = torch.Generator(device=self.device).manual_seed(10_000 + batch_idx)
-        loss = self.loss(self.inference_net, self.normalized_cond(batch["cond"]),
-                         self.normalized_target(batch["cond"], batch["target"]), generator=gen)
+        loss = self._batch_loss(self.inference_net, batch, gen)
         self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=batch["cond"].shape[0],
                  sync_dist=True)
         return loss
@@ -358,11 +391,12 @@ class DCM(ForceModel):
         self.cfg.sampler, self.cfg.sampling_steps = sampler, sampling_steps
         self.sample_scheduler = scheduler
 
-    def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
-             generator: torch.Generator | None = None) -> torch.Tensor:
+    def denoising_outputs(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+                          generator: torch.Generator | None = None, groups: torch.Tensor | None = None
+                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         net_in = diffusion.scale_noisy_input(net, self.train_scheduler, self.cfg.input_scaling)
-        return diffusion.diffusion_loss(net_in, cond_n, target_n, self.train_scheduler, generator=generator,
-                                        top_step_fraction=self.cfg.top_step_fraction)
+        return diffusion.denoising_outputs(net_in, cond_n, target_n, self.train_scheduler, generator,
+                                           self.cfg.top_step_fraction, groups)
 
     def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
                           generator: torch.Generator | None = None) -> torch.Tensor:

@@ -38,6 +38,8 @@ __all__ = [
     "sample_timesteps",
     "check_inference_steps",
     "diffusion_loss",
+    "denoising_outputs",
+    "predicted_sample",
     "training_target",
     "sample",
     "sample_many",
@@ -243,10 +245,43 @@ def diffusion_loss(
 ) -> torch.Tensor:
     """MSE between the net's output and its target (noise, x0 or v, per the scheduler's prediction type)
     at a random t (``sample_timesteps``)."""
-    t = sample_timesteps(scheduler, x0.shape[0], x0.device, generator, top_step_fraction)
-    noise = randn_tensor(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
-    output = net(cond, add_noise(scheduler, x0, noise, t), t)
-    return torch.nn.functional.mse_loss(output, training_target(scheduler, x0, noise, t), reduction=reduction)
+    output, target, _ = denoising_outputs(net, cond, x0, scheduler, generator, top_step_fraction)
+    return torch.nn.functional.mse_loss(output, target, reduction=reduction)
+
+
+def denoising_outputs(
+    net: ScoreNet, cond: torch.Tensor, x0: torch.Tensor, scheduler: Scheduler, generator=None,
+    top_step_fraction: float = 0.0, groups: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The net's output, its training target and the x0 estimate the output implies, at a random t.
+
+    ``groups`` (B,) integer labels: rows with the same label share their step t and their noise, so the
+    differences between their x0 estimates come from their conditions and x0 alone (a loss that compares
+    trials of one skill needs that). None draws both per row, exactly as ``diffusion_loss`` does.
+    """
+    if groups is None:
+        t = sample_timesteps(scheduler, x0.shape[0], x0.device, generator, top_step_fraction)
+        noise = randn_tensor(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
+    else:
+        _, member = torch.unique(groups, return_inverse=True)
+        n_groups = int(member.max()) + 1
+        t = sample_timesteps(scheduler, n_groups, x0.device, generator, top_step_fraction)[member]
+        noise = randn_tensor((n_groups, *x0.shape[1:]), generator=generator, device=x0.device, dtype=x0.dtype)[member]
+    x_t = add_noise(scheduler, x0, noise, t)
+    output = net(cond, x_t, t)
+    return output, training_target(scheduler, x0, noise, t), predicted_sample(scheduler, x_t, output, t)
+
+
+def predicted_sample(scheduler: Scheduler, x_t: torch.Tensor, output: torch.Tensor, timesteps: torch.Tensor
+                     ) -> torch.Tensor:
+    """The x0 estimate a net output at step t implies, per the scheduler's prediction type (unclipped)."""
+    kind = scheduler.config.prediction_type
+    if kind == "sample":
+        return output
+    ab = _alpha_bar_at(scheduler, timesteps, x_t)
+    if kind == "epsilon":
+        return (x_t - (1.0 - ab).sqrt() * output) / ab.sqrt()
+    return ab.sqrt() * x_t - (1.0 - ab).sqrt() * output  # v_prediction
 
 
 def training_target(scheduler: Scheduler, x0: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
