@@ -173,13 +173,22 @@ class ForceModel(L.LightningModule):
         """The force loss: MSE of the net's output against its target. With ``task_weight`` > 0, and the
         batch's raw conditions ``cond`` and skill labels ``groups`` given, plus ``task_weight`` times the
         within-skill L_task error of the implied force (:meth:`task_term`)."""
+        return self._weighted(self.loss_terms(net, cond_n, target_n, generator, cond, groups))
+
+    def _weighted(self, terms: dict[str, torch.Tensor]) -> torch.Tensor:
+        return terms["force"] + self.cfg.task_weight * terms["task"] if "task" in terms else terms["force"]
+
+    def loss_terms(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+                   generator: torch.Generator | None = None, cond: torch.Tensor | None = None,
+                   groups: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The unweighted parts of :meth:`loss`: ``force``, and ``task`` when the task term applies."""
         with_task = self.cfg.task_weight > 0 and cond is not None and groups is not None
         output, target, estimate_n = self.denoising_outputs(net, cond_n, target_n, generator,
                                                             groups if with_task else None)
-        loss = torch.nn.functional.mse_loss(output, target)
+        terms = {"force": torch.nn.functional.mse_loss(output, target)}
         if with_task:
-            loss = loss + self.cfg.task_weight * self.task_term(cond, estimate_n, target_n, groups)
-        return loss
+            terms["task"] = self.task_term(cond, estimate_n, target_n, groups)
+        return terms
 
     def task_term(self, cond: torch.Tensor, estimate_n: torch.Tensor, target_n: torch.Tensor,
                   groups: torch.Tensor) -> torch.Tensor:
@@ -213,21 +222,28 @@ class ForceModel(L.LightningModule):
         """The training target in normalised units for raw conditions and F_obs."""
         return self.target_norm.normalize(self.model_target(cond, force))
 
-    def _batch_loss(self, net: nn.Module, batch: dict[str, torch.Tensor],
-                    generator: torch.Generator | None = None) -> torch.Tensor:
+    def _batch_loss(self, net: nn.Module, batch: dict[str, torch.Tensor], generator: torch.Generator | None = None,
+                    prefix: str | None = None) -> torch.Tensor:
+        """The loss of a batch; with ``prefix``, its parts are logged as ``<prefix>/loss_force`` and
+        ``<prefix>/loss_task`` when the task term applies."""
         cond = batch["cond"]
-        return self.loss(net, self.normalized_cond(cond), self.normalized_target(cond, batch["target"]), generator,
-                         cond=cond, groups=batch.get("skill"))
+        terms = self.loss_terms(net, self.normalized_cond(cond), self.normalized_target(cond, batch["target"]),
+                                generator, cond=cond, groups=batch.get("skill"))
+        if prefix and "task" in terms:
+            for name, value in terms.items():
+                self.log(f"{prefix}/loss_{name}", value, on_step=False, on_epoch=True, batch_size=cond.shape[0],
+                         sync_dist=prefix != "train")
+        return self._weighted(terms)
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        loss = self._batch_loss(self.net, batch)
+        loss = self._batch_loss(self.net, batch, prefix="train")
         self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=batch["cond"].shape[0])
         return loss
 
     def _eval_loss(self, batch: dict[str, torch.Tensor], batch_idx: int, prefix: str) -> torch.Tensor:
         # A fixed generator per batch makes the (noisy) diffusion loss comparable across epochs.
         gen = torch.Generator(device=self.device).manual_seed(10_000 + batch_idx)
-        loss = self._batch_loss(self.inference_net, batch, gen)
+        loss = self._batch_loss(self.inference_net, batch, gen, prefix)
         self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=batch["cond"].shape[0],
                  sync_dist=True)
         return loss
