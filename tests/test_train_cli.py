@@ -119,7 +119,7 @@ def test_bad_invocations_fail_with_clear_messages(sweep: Path, tiny_dataset_path
 
 def test_the_within_skill_task_term_trains_from_the_cli(tiny_dataset_path: Path, tmp_path: Path) -> None:
     common = ["model=baseline", "data=path", f"data.path={tiny_dataset_path}", *TINY, "model.task_weight=10",
-              "model.task_from_s=0.5", "test_after_fit=false"]
+              "model.task_from_s=0.5", "metrics.task_from_s=0.5"]
     proc = _run([str(REPO / "train.py"), *common, f"hydra.run.dir={tmp_path / 'ungrouped'}"], cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "data.skill_group" in proc.stderr.strip().splitlines()[-1]
     _run([str(REPO / "train.py"), *common, "data.skill_group=3", f"hydra.run.dir={tmp_path / 'grouped'}"], cwd=tmp_path)
@@ -127,3 +127,11 @@ def test_the_within_skill_task_term_trains_from_the_cli(tiny_dataset_path: Path,
     assert summary["global_step"] > 0 and Path(summary["best_checkpoint"]).exists()
     config = yaml.safe_load((tmp_path / "grouped" / "config.yaml").read_text())
     assert config["model"]["task_weight"] == 10 and config["data"]["skill_group"] == 3
+    # the metrics count from 0.5 s on: copying F_demo is scored on that window (20 Hz: from step 10)
+    from dcm.data.schema import load_dataset
+    from dcm.models.metrics import force_rmse
+
+    test = load_dataset(tiny_dataset_path, split="test")
+    expected = force_rmse(test.arrays["F_demo"][:, 10:], test.arrays["F_obs"][:, 10:])
+    assert summary["test"]["test/force_rmse_copy_N"] == pytest.approx(expected, rel=1e-5)
+    assert expected != pytest.approx(force_rmse(test.arrays["F_demo"], test.arrays["F_obs"]), rel=1e-3)

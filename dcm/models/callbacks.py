@@ -30,6 +30,7 @@ import torchmetrics
 from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.utilities import rank_zero_warn
 
+from dcm.control.objectives import task_window_start
 from dcm.data.datamodule import TrajectoryDataset
 from dcm.data.schema import cond_slice
 from dcm.models.metrics import MIN_TRIALS, WRENCH_AXES, force_prediction_metrics
@@ -117,13 +118,15 @@ class ForceMetricsCallback(Callback):
     since ModelCheckpoint monitors one of them); how many trajectories is the DataModule's ``n_eval``
     (null = the whole split, the default, so checkpoint selection sees every validation skill); how many
     samples per trajectory is ``n_samples`` (None = the model's own default). Skills are the trajectories'
-    ``demo_id``, read from the DataModule's file.
+    ``demo_id``, read from the DataModule's file. ``task_from_s``: the force metrics and L_task count from
+    this second on (1.0 leaves out the demos' approach), and so does checkpoint selection on them.
     """
 
     def __init__(self, n_samples: int | None = None, n_plot: int = 3, plot_every_n_evals: int = 1,
-                 seed: int = 0) -> None:
+                 seed: int = 0, task_from_s: float = 0.0) -> None:
         super().__init__()
         self.n_samples = n_samples
+        self.task_from_s = float(task_from_s)
         self.n_plot = int(n_plot)
         self.plot_every_n_evals = max(1, int(plot_every_n_evals))
         self.seed = int(seed)
@@ -143,7 +146,8 @@ class ForceMetricsCallback(Callback):
             return None
         dataset = datamodule.eval_set(split)
         skills = self._skills_of(datamodule, split, dataset.names)
-        metrics, arrays = evaluate_model(pl_module, dataset, self.n_samples, self.seed, skills)
+        from_step = task_window_start(self.task_from_s, datamodule.control_hz, dataset.cond.shape[1])
+        metrics, arrays = evaluate_model(pl_module, dataset, self.n_samples, self.seed, skills, from_step)
         for key, value in metrics.items():
             # identical on every rank (same data, same seed); the sync only keeps DDP ranks formally in step
             pl_module.log(f"{prefix}/{key}", value if math.isfinite(value) else float("nan"),
