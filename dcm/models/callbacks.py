@@ -20,7 +20,6 @@ true force curves; :func:`evaluate_model` is the same computation for ``python -
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any
 
 import lightning as L
@@ -36,15 +35,6 @@ from dcm.data.schema import cond_slice
 from dcm.models.metrics import MIN_TRIALS, WRENCH_AXES, force_prediction_metrics
 
 AXES: tuple[str, ...] = WRENCH_AXES  # Fx, Fy, Fz, Tx, Ty, Tz
-GROUP_KEY = "demo_id"  # trajectory attribute that names a skill for within-skill R (see dcm.models.metrics)
-
-
-def read_skills(path: str | Path, names: list[str]) -> np.ndarray:
-    """The ``demo_id`` of each named trajectory of a dataset file (-1 where absent): the within-skill groups."""
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        return np.array([int(f["data"][name].attrs.get(GROUP_KEY, -1)) for name in names], dtype=np.int64)
 
 
 @torch.no_grad()
@@ -118,7 +108,7 @@ class ForceMetricsCallback(Callback):
     since ModelCheckpoint monitors one of them); how many trajectories is the DataModule's ``n_eval``
     (null = the whole split, the default, so checkpoint selection sees every validation skill); how many
     samples per trajectory is ``n_samples`` (None = the model's own default). Skills are the trajectories'
-    ``demo_id``, read from the DataModule's file. ``task_from_s``: the force metrics and L_task count from
+    ``demo_id``, which the DataModule's splits carry. ``task_from_s``: the force metrics and L_task count from
     this second on (1.0 leaves out the demos' approach), and so does checkpoint selection on them.
     """
 
@@ -131,21 +121,14 @@ class ForceMetricsCallback(Callback):
         self.plot_every_n_evals = max(1, int(plot_every_n_evals))
         self.seed = int(seed)
         self._evals = 0
-        self._skills: dict[str, np.ndarray | None] = {}
         self._warned: set[str] = set()
-
-    def _skills_of(self, datamodule: Any, split: str, names: list[str]) -> np.ndarray | None:
-        if split not in self._skills:
-            path = getattr(datamodule, "path", None)
-            self._skills[split] = read_skills(path, names) if path is not None else None
-        return self._skills[split]
 
     def _run(self, trainer: L.Trainer, pl_module: Any, split: str, prefix: str) -> dict[str, float] | None:
         datamodule = trainer.datamodule
         if datamodule is None or not hasattr(datamodule, "eval_set"):
             return None
         dataset = datamodule.eval_set(split)
-        skills = self._skills_of(datamodule, split, dataset.names)
+        skills = dataset.skills.numpy()  # each trial's demo_id, as the DataModule read it
         from_step = task_window_start(self.task_from_s, datamodule.control_hz, dataset.cond.shape[1])
         metrics, arrays = evaluate_model(pl_module, dataset, self.n_samples, self.seed, skills, from_step)
         for key, value in metrics.items():
