@@ -8,7 +8,9 @@ schedules per skill loses: 0 the truly best, 1 a random pick),
 ``L_task_mae_N`` and, for force predictors, L_MSE (normalised units, learned models only), per-axis RMSE
 [N, N·m], ``force_rmse_N``, ``force_rmse_copy_N``, ``force_rmse_ratio_copy`` and the part of the force error a
 skill's trials share (``force_rmse_skill_common_N``, the same for copy-F_demo); plus n and what produced
-them (model kind, T, sampler, samples, seed). A learned model is reported beside two references under
+them (model kind, T, sampler, samples, seed). ``per_skill`` lists, for every skill, how far its
+schedules' L_task differ, how far the predictor errs between them and how well it ranks them
+(:func:`dcm.models.metrics.per_skill_ranking`). A learned model is reported beside two references under
 ``references``: ``copy_demo`` and ``stiffness_ridge`` (fitted on the same file's train split in seconds, or
 loaded from ``reference=<json>``), so every comparison shows them. Skills are the trajectories' ``demo_id``.
 The dataset must have the model's channels and control rate; it need not be one the model saw.
@@ -32,7 +34,7 @@ from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
 from dcm.models.configuration import ModelInputError
 from dcm.models.dcm import DCM, ForceModel
-from dcm.models.metrics import REGRET_KEY, force_prediction_metrics, ranking_metrics
+from dcm.models.metrics import REGRET_KEY, force_prediction_metrics, per_skill_ranking, ranking_metrics
 from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss
 from dcm.models.references import COPY_DEMO, STIFFNESS_RIDGE, CopyDemo, StiffnessRegression, dataset_phases
 
@@ -40,22 +42,30 @@ log = logging.getLogger("dcm.evaluate")
 
 
 def score(predictor: Any, data: TrajectoryDataset, skills: np.ndarray | None, n_samples: int | None = None,
-          seed: int = 0, from_step: int = 0) -> dict[str, float]:
+          seed: int = 0, from_step: int = 0) -> dict[str, Any]:
     """Metrics of any predictor on a set of trajectories (see the module docstring for the keys); force
-    errors and L_task count the steps from ``from_step`` on."""
+    errors and L_task count the steps from ``from_step`` on. A predictor that ranks schedules also gets
+    ``per_skill`` (:func:`dcm.models.metrics.per_skill_ranking`) when ``skills`` are given."""
     if isinstance(predictor, ForceModel):
-        return evaluate_model(predictor, data, n_samples, seed, skills, from_step)[0]
-    cond, F_obs = data.cond.numpy(), data.target.numpy()
-    x_demo, F_demo, x_attr, K = (cond[..., cond_slice(f)] for f in ("x_demo", "F_demo", "x_attr", "K"))
-    if isinstance(predictor, ForcePredictor):
-        F_pred, _ = predictor.predict_forces(x_demo, F_demo, x_attr, K, n_samples=n_samples)
-        window = slice(int(from_step), None)
-        metrics = force_prediction_metrics(np.asarray(F_pred)[:, window], F_obs[:, window], F_demo[:, window],
-                                           skills)[0]
-    else:  # a stiffness ridge predicts the L_task of the window it was fitted on (checked by the caller)
+        metrics, arrays = evaluate_model(predictor, data, n_samples, seed, skills, from_step)
+        L_pred, L_true = arrays["L_task_pred"], arrays["L_task_true"]
+    else:
+        cond, F_obs = data.cond.numpy(), data.target.numpy()
+        x_demo, F_demo, x_attr, K = (cond[..., cond_slice(f)] for f in ("x_demo", "F_demo", "x_attr", "K"))
+        if isinstance(predictor, ForcePredictor):  # copy-F_demo: a force floor, no ranking
+            F_pred, _ = predictor.predict_forces(x_demo, F_demo, x_attr, K, n_samples=n_samples)
+            window = slice(int(from_step), None)
+            metrics = force_prediction_metrics(np.asarray(F_pred)[:, window], F_obs[:, window],
+                                               F_demo[:, window], skills)[0]
+            return {"R": metrics["R_pooled"], **metrics}
+        # a stiffness ridge predicts the L_task of the window it was fitted on (checked by the caller)
         L_true = np.asarray(task_loss(F_obs.astype(np.float64), F_demo.astype(np.float64), from_step))
-        metrics = ranking_metrics(predict_task_loss(predictor, x_demo, F_demo, x_attr, K), L_true, skills)
-    return {"R": metrics["R_pooled"], **metrics}
+        L_pred = predict_task_loss(predictor, x_demo, F_demo, x_attr, K)
+        metrics = ranking_metrics(L_pred, L_true, skills)
+    out: dict[str, Any] = {"R": metrics["R_pooled"], **metrics}
+    if skills is not None:
+        out["per_skill"] = per_skill_ranking(L_pred, L_true, skills)
+    return out
 
 
 def reference_scores(dataset: str | Path, data: TrajectoryDataset, skills: np.ndarray,

@@ -11,6 +11,8 @@ resampled within skills, median bounds over seeds), which says how much the spli
 references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's train split) come from the
 same evaluations, so they sit on exactly the trajectories the models were scored on. Below the table, a Welch
 t-test over seeds compares every other model with the first (R within skill and force RMSE, per split).
+``--per-skill`` adds one row per skill: how far its schedules' L_task differ beside how far each predictor
+errs between them, which says where a mean R within skill comes from.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overr
     ckpt = run_checkpoint(run_dir)
     if path.is_file() and path.stat().st_mtime_ns >= ckpt.stat().st_mtime_ns:
         cached = json.loads(path.read_text())
-        if cached.get("ckpt") == str(ckpt.resolve()) and REGRET_KEY in cached:
+        if cached.get("ckpt") == str(ckpt.resolve()) and REGRET_KEY in cached and "per_skill" in cached:
             return cached
     result = evaluate(ckpt, dataset, split=split, **overrides)
     path.write_text(json.dumps(result, indent=1))
@@ -89,6 +91,33 @@ def table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: list[str]) -
             cells += [interval_cell(results) if key == INTERVAL else cell([r.get(key) for r in results])
                       for key, _ in COLUMNS]
         lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _median(values: list[Any]) -> float:
+    finite = [float(v) for v in values if v is not None and np.isfinite(v)]
+    return float(np.median(finite)) if finite else float("nan")
+
+
+def per_skill_table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: list[str]) -> str:
+    """Markdown: one row per skill, its true L_task spread, and per predictor the median over seeds of its R
+    on that skill and of the spread of its L_task error there (``dcm.models.metrics.per_skill_ranking``)."""
+    ranked = [label for label, per_split in rows.items()
+              if any(r.get("per_skill") for results in per_split.values() for r in results)]
+    head = (["split", "skill", "trials", "L_task mean [N]", "L_task sd [N]"]
+            + [f"{label}: {what}" for label in ranked for what in ("R", "error sd [N]")])
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    fmt = (lambda v: f"{v:.3f}" if np.isfinite(v) else "–")
+    for split in splits:
+        skills = {s["skill"]: s for label in ranked for r in rows[label].get(split, [])
+                  for s in r.get("per_skill", [])}
+        for skill, first in skills.items():
+            cells = [split, skill, str(first["n"]), f"{first['L_task_mean_N']:.4f}", f"{first['L_task_sd_N']:.4f}"]
+            for label in ranked:
+                found = [s for r in rows[label].get(split, []) for s in r.get("per_skill", []) if s["skill"] == skill]
+                error = _median([s["error_sd_N"] for s in found])
+                cells += [fmt(_median([s["R"] for s in found])), f"{error:.4f}" if np.isfinite(error) else "–"]
+            lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -147,6 +176,8 @@ def main(argv: list[str] | None = None) -> str:
                         help="score the force from this time [s] on (1.0: without the demos' approach)")
     parser.add_argument("--reference", default=None,
                         help="stiffness reference JSON for the ridge row (default: fitted on the dataset's train split)")
+    parser.add_argument("--per-skill", action="store_true",
+                        help="add a table per skill: its L_task spread beside each predictor's R and error there")
     parser.add_argument("--out", type=Path, default=None, help="write the Markdown table here")
     argv = sys.argv[1:] if argv is None else argv
     args = parser.parse_args(argv)
@@ -177,6 +208,10 @@ def main(argv: list[str] | None = None) -> str:
     tests = significance(rows, list(runs), args.splits)
     if tests:
         text += "\n\n" + tests
+    if args.per_skill:
+        text += ("\n\nPer skill (median over seeds): a skill's schedules can be ranked only where they differ "
+                 "in L_task by more than the predictor errs between them (`L_task sd` against `error sd`).\n\n"
+                 + per_skill_table(rows, args.splits))
     header = (f"Dataset `{args.dataset}`; median [range] over seeds; checkpoints selected on val/R_within. "
               f"Command: `python -m dcm.model_table {shlex.join(argv)}`")
     if args.out:

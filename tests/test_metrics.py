@@ -12,6 +12,7 @@ from dcm.models.metrics import (
     correlation,
     force_metrics,
     force_prediction_metrics,
+    per_skill_ranking,
     ranking_metrics,
     skill_common_rmse,
     within_skill_correlation,
@@ -172,3 +173,25 @@ def test_interval_is_narrow_for_many_trials_and_wide_when_one_trial_carries_the_
     m = ranking_metrics(pred, true, np.zeros(30))
     assert (m["R_within_lo"], m["R_within_hi"]) == (lo, hi)
     assert all(math.isnan(v) for v in within_skill_interval(np.zeros(4), np.arange(4.0), np.zeros(4)))
+
+
+def test_per_skill_rows_say_how_far_schedules_differ_against_how_far_the_predictor_errs() -> None:
+    rng = np.random.default_rng(0)
+    n = 4000
+    true = np.concatenate([rng.normal(1.0, 0.02, n), rng.normal(5.0, 0.10, n), [3.0, 3.1]])
+    noise = rng.normal(0.0, 0.02, 2 * n)
+    pred = np.concatenate([true[:2 * n] + noise + 0.5, [3.0, 3.1]])  # an offset shared by a skill reorders nothing
+    skills = np.repeat(["a", "b", "c"], [n, n, 2])
+    rows = per_skill_ranking(pred, true, skills)
+    assert [r["skill"] for r in rows] == ["a", "b"]  # two trials give no ranking
+    a, b = rows
+    assert a["n"] == n and a["L_task_mean_N"] == pytest.approx(1.0, abs=2e-3)
+    assert a["L_task_sd_N"] == pytest.approx(0.02, rel=0.05) and a["error_sd_N"] == pytest.approx(0.02, rel=0.05)
+    for row, s in ((a, 1.0), (b, 5.0)):  # independent errors: R = s / sqrt(1 + s^2), s = signal / error
+        assert row["signal_to_error"] == pytest.approx(s, rel=0.05)
+        assert row["R"] == pytest.approx(s / math.sqrt(1 + s**2), abs=0.02)
+        assert row["R_spearman"] == pytest.approx(stats.spearmanr(pred[skills == row["skill"]],
+                                                                  true[skills == row["skill"]]).statistic)
+    exact = per_skill_ranking(true + 7.0, true, skills)[0]
+    assert exact["error_sd_N"] == pytest.approx(0.0, abs=1e-12) and exact["R"] == pytest.approx(1.0)
+    assert exact["regret"] == 0.0 and exact["signal_to_error"] > 1e6

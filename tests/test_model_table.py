@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dcm.model_study.stats import p_text
-from dcm.model_table import REGRET_KEY, cached_eval, cell, significance, table
+from dcm.model_table import REGRET_KEY, cached_eval, cell, per_skill_table, significance, table
 
 
 def test_cell_median_and_range() -> None:
@@ -57,7 +57,7 @@ def test_cached_eval_reevaluates_a_checkpoint_rewritten_under_the_same_path(
 
     def evaluate(path: Path, dataset: Path, split: str) -> dict:
         calls.append(path)
-        return {"ckpt": str(Path(path).resolve()), REGRET_KEY: 0.0, "R_within": float(len(calls))}
+        return {"ckpt": str(Path(path).resolve()), REGRET_KEY: 0.0, "R_within": float(len(calls)), "per_skill": []}
 
     monkeypatch.setattr(dcm.evaluate, "evaluate", evaluate)
     dataset = tmp_path / "set.h5"
@@ -98,3 +98,18 @@ def test_task_from_s_reaches_evaluate_and_keeps_its_own_cache(tmp_path: Path, mo
     monkeypatch.setattr(dcm.evaluate, "evaluate", evaluate)
     main(["--dataset", str(tmp_path / "set.h5"), "--splits", "valid", "--task-from-s", "1.0", "--runs", f"DCM={run}"])
     assert seen == [{"task_from_s": 1.0}] and (run / "eval_set_valid_task_from_s1.0.json").is_file()
+
+
+def test_per_skill_table_gives_each_skill_its_spread_and_each_predictor_its_median() -> None:
+    def skill(name: str, r: float, error: float) -> dict:
+        return {"skill": name, "n": 20, "L_task_mean_N": 0.5, "L_task_sd_N": 0.02, "error_sd_N": error, "R": r}
+
+    rows = {"DCM": {"valid": [{"per_skill": [skill("3", 0.2, 0.03), skill("7", 0.9, 0.01)]},
+                              {"per_skill": [skill("3", 0.4, 0.05), skill("7", 0.8, 0.01)]}]},
+            "copy-F_demo": {"valid": [{"force_rmse_N": 1.0}]},  # ranks nothing: no columns
+            "stiffness-only ridge": {"valid": [{"per_skill": [skill("3", 0.6, 0.02)]}]}}
+    lines = per_skill_table(rows, ["valid"]).splitlines()
+    assert lines[0] == ("| split | skill | trials | L_task mean [N] | L_task sd [N] | DCM: R | DCM: error sd [N] "
+                        "| stiffness-only ridge: R | stiffness-only ridge: error sd [N] |")
+    assert lines[2] == "| valid | 3 | 20 | 0.5000 | 0.0200 | 0.300 | 0.0400 | 0.600 | 0.0200 |"
+    assert lines[3] == "| valid | 7 | 20 | 0.5000 | 0.0200 | 0.850 | 0.0100 | – | – |"

@@ -135,6 +135,11 @@ def test_evaluate_reports_the_references_beside_the_model(baseline_ckpt: Path, t
     assert RANKING | FORCES <= set(copy) and copy["force_rmse_ratio_copy"] == 1.0 and math.isnan(copy["R_within"])
     assert copy["force_rmse_N"] == pytest.approx(result["force_rmse_copy_N"])
     assert RANKING <= set(ridge) and ridge["fitted_split"] == "train" and ridge["R_within_n_skills"] == 1
+    # per skill: the model and the ridge rank, copy-F_demo does not
+    for row in (result, ridge):
+        (one,) = row["per_skill"]
+        assert one["n"] == 3 and one["R"] == pytest.approx(row["R_within"])
+    assert "per_skill" not in copy
 
     # a saved reference is used as given; the references evaluate alone, by name or file
     ref = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])

@@ -103,6 +103,34 @@ def within_skill_regret(pred: np.ndarray, true: np.ndarray, skills: np.ndarray, 
     return (float(np.mean(values)) if values else float("nan")), len(values)
 
 
+def per_skill_ranking(pred: np.ndarray, true: np.ndarray, skills: np.ndarray, n_top: int = TOP_PICKS
+                      ) -> list[dict[str, float | int | str]]:
+    """One row per skill with >= :data:`MIN_TRIALS` finite trials: how far its schedules differ in L_task,
+    how far the predictor errs between them, and how well it ranks them.
+
+    Keys: ``skill``, ``n``, ``L_task_mean_N`` and ``L_task_sd_N`` (the true L_task's mean and spread over
+    the skill's trials), ``error_sd_N`` (the spread of the L_task error ``pred - true`` over the same
+    trials: an offset shared by the skill's schedules does not reorder them, so only this part can),
+    ``signal_to_error`` (``L_task_sd_N / error_sd_N``), ``R``, ``R_spearman`` and ``regret``
+    (:func:`within_skill_regret` of the skill alone). With errors independent of L_task, a predictor's R on
+    a skill is about ``s / sqrt(1 + s**2)`` for ``s = signal_to_error``: schedules that differ by less than
+    the predictor errs cannot be ranked by it, whatever its mean score over skills.
+    """
+    pred, true, groups = _skill_trials(pred, true, skills, MIN_TRIALS, "per_skill_ranking")
+    labels = np.asarray(skills).ravel()
+    rows: list[dict[str, float | int | str]] = []
+    for sel in groups:
+        p, t = pred[sel], true[sel]
+        spread, error = float(t.std()), float((p - t).std())
+        regret = within_skill_regret(p, t, np.zeros(sel.size), n_top)[0] if sel.size > n_top else float("nan")
+        rows.append({"skill": str(labels[sel[0]]), "n": int(sel.size), "L_task_mean_N": float(t.mean()),
+                     "L_task_sd_N": spread, "error_sd_N": error,
+                     "signal_to_error": spread / error if error > 0 else float("inf"),
+                     "R": correlation(p, t, "pearson"), "R_spearman": correlation(p, t, "spearman"),
+                     "regret": regret})
+    return rows
+
+
 def _rowwise_pearson(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
     """Pearson correlation of each row pair of two (B, n) arrays; NaN where a row is constant."""
     pred = pred - pred.mean(axis=1, keepdims=True)
@@ -235,4 +263,4 @@ def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.n
 
 
 __all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "REGRET_KEY", "TOP_PICKS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
-           "ranking_metrics", "skill_common_rmse", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]
+           "per_skill_ranking", "ranking_metrics", "skill_common_rmse", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]

@@ -98,6 +98,19 @@ class DomainSpec(SpecIO):
     def has_sensing_effects(self) -> bool:
         return any(self.ft_bias) or any(self.ft_noise_std) or self.ft_lowpass_hz > 0
 
+    def sense(self, wrench: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
+        """What the F/T sensor reads of a (H, 6) wrench sampled every ``dt`` [s]: bias + white noise, then a
+        first-order low-pass along the first axis. The wrench itself when the domain has no sensing effects."""
+        if not self.has_sensing_effects:
+            return wrench
+        out = wrench + np.asarray(self.ft_bias)
+        out = out + rng.standard_normal(wrench.shape) * np.asarray(self.ft_noise_std)
+        if self.ft_lowpass_hz > 0:
+            alpha = 1.0 - np.exp(-2.0 * np.pi * self.ft_lowpass_hz * dt)
+            for k in range(1, len(out)):
+                out[k] = out[k - 1] + alpha * (out[k] - out[k - 1])
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         """The fields as plain values. The per-rollout spreads are left out while they are 0, so that datasets
         and tuning logs written before the fields existed keep their fingerprints."""

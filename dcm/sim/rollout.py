@@ -381,8 +381,8 @@ class Simulator:
                         arr[~np.isfinite(arr)] = 0.0
                 contact[k:] = False
                 break
-        force_obs = self._sense(f_contact, rng)
-        force_sensor = self._sense(f_sensor, rng)
+        force_obs = self.domain.sense(f_contact, self.dt, rng)
+        force_sensor = self.domain.sense(f_sensor, self.dt, rng)
         return _Execution(x_obs, v_obs, force_obs, force_sensor, contact, failed, reason, failed_step)
 
     @staticmethod
@@ -412,15 +412,3 @@ class Simulator:
             return f"tool {-gap:.3f} m below the surface (limit {bounds.max_below_surface_m:g} m)"
         return ""
 
-    def _sense(self, wrench: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Domain sensing: bias + white noise, then a first-order low-pass at the control rate."""
-        domain = self.domain
-        if not domain.has_sensing_effects:
-            return wrench
-        out = wrench + np.asarray(domain.ft_bias)
-        out = out + rng.standard_normal(wrench.shape) * np.asarray(domain.ft_noise_std)
-        if domain.ft_lowpass_hz > 0:
-            alpha = 1.0 - np.exp(-2.0 * np.pi * domain.ft_lowpass_hz * self.dt)
-            for k in range(1, len(out)):
-                out[k] = out[k - 1] + alpha * (out[k] - out[k - 1])
-        return out
