@@ -35,7 +35,8 @@ from dcm.models.callbacks import evaluate_model
 from dcm.models.configuration import ModelInputError
 from dcm.models.dcm import DCM, ForceModel
 from dcm.models.metrics import REGRET_KEY, force_prediction_metrics, per_skill_ranking, ranking_metrics
-from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss
+from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss, with_prior
+from dcm.models.prior_blend import PriorBlend
 from dcm.models.references import COPY_DEMO, STIFFNESS_RIDGE, CopyDemo, StiffnessRegression, dataset_phases
 
 log = logging.getLogger("dcm.evaluate")
@@ -58,9 +59,15 @@ def score(predictor: Any, data: TrajectoryDataset, skills: np.ndarray | None, n_
             metrics = force_prediction_metrics(np.asarray(F_pred)[:, window], F_obs[:, window],
                                                F_demo[:, window], skills)[0]
             return {"R": metrics["R_pooled"], **metrics}
-        # a stiffness ridge predicts the L_task of the window it was fitted on (checked by the caller)
+        # a stiffness ridge predicts the L_task of the window it was fitted on (checked by the caller); a
+        # prior blend's force model counts the same window and samples seeded, as evaluate_model does
         L_true = np.asarray(task_loss(F_obs.astype(np.float64), F_demo.astype(np.float64), from_step))
-        L_pred = predict_task_loss(predictor, x_demo, F_demo, x_attr, K)
+        generator = None
+        if isinstance(predictor, PriorBlend):
+            import torch
+
+            generator = torch.Generator(device=predictor.device).manual_seed(int(seed))
+        L_pred = predict_task_loss(predictor, x_demo, F_demo, x_attr, K, n_samples, generator, from_step)
         metrics = ranking_metrics(L_pred, L_true, skills)
     out: dict[str, Any] = {"R": metrics["R_pooled"], **metrics}
     if skills is not None:
@@ -98,13 +105,16 @@ def reference_scores(dataset: str | Path, data: TrajectoryDataset, skills: np.nd
 def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_samples: int | None = None,
              n_eval: int | None = None, seed: int = 0, device: str = "auto", reference: str | Path | None = None,
              sampler: str | None = None, sampling_steps: int | None = None,
-             task_loss: str | None = None, task_from_s: float = 0.0) -> dict[str, Any]:
+             task_loss: str | None = None, task_from_s: float = 0.0, prior: str | Path | None = None,
+             prior_weight: float = 0.0) -> dict[str, Any]:
     """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model.
 
     ``sampler`` / ``sampling_steps`` override a DCM's sampler (ddpm | ddim and DDIM's steps) for this run,
     ``task_loss`` how its samples give L_task (of_mean | over_samples; the same for the baseline).
     ``task_from_s``: score only the force from this time on, e.g. 1.0 to leave out the demos' approach and
-    touch-down (:func:`dcm.control.objectives.task_window_start`)."""
+    touch-down (:func:`dcm.control.objectives.task_window_start`). ``prior`` / ``prior_weight``: rank with the
+    model's L_task blended with a stiffness ridge (:mod:`dcm.models.prior_blend`); force metrics are then left
+    out, as the blend predicts L_task only."""
     predictor = load_model(ckpt, map_location="cpu")
     if isinstance(predictor, ForceModel):
         predictor = predictor.to(resolve_device(device))
@@ -116,13 +126,14 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
         if not isinstance(predictor, ForceModel):
             raise ModelInputError(f"task_loss applies to a DCM or baseline checkpoint, not to {ckpt}")
         predictor.set_task_loss(task_loss)
+    predictor = with_prior(predictor, prior, prior_weight, f"ckpt={ckpt}")
     loaded = load_dataset(dataset, split=None if split == "all" else split)
     cond_channels, target_channels = dataset_channels(loaded)
     check_dataset(predictor, cond_channels, target_channels, loaded.control_hz, source=f"dataset {dataset}")
     n_phases = dataset_phases(loaded, required=False)
-    if isinstance(predictor, StiffnessRegression):
+    if isinstance(predictor, (StiffnessRegression, PriorBlend)):
         predictor.check_phases(n_phases, source=f"dataset {dataset}")
-        predictor.check_window(task_from_s, source=f"ckpt={ckpt}")
+        predictor.check_window(task_from_s, source=f"prior={prior}" if prior else f"ckpt={ckpt}")
     try:
         from_step = task_window_start(task_from_s, loaded.control_hz, loaded.horizon)
     except ValueError as err:
@@ -146,7 +157,7 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
         "control_hz": loaded.control_hz,
         "horizon": loaded.horizon,
     }
-    if isinstance(predictor, ForceModel):
+    if isinstance(predictor, (ForceModel, PriorBlend)):
         result["references"] = reference_scores(dataset, data, skills, reference, n_phases, task_from_s, from_step)
     return result
 
@@ -177,7 +188,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
                           seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference,
                           sampler=cfg.sampler, sampling_steps=cfg.sampling_steps, task_loss=cfg.task_loss,
-                          task_from_s=float(cfg.task_from_s))
+                          task_from_s=float(cfg.task_from_s), prior=cfg.prior, prior_weight=cfg.prior_weight)
     except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
         raise SystemExit(f"error: {err}") from None
     out = Path(str(cfg.out))

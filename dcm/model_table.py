@@ -176,6 +176,10 @@ def main(argv: list[str] | None = None) -> str:
                         help="score the force from this time [s] on (1.0: without the demos' approach)")
     parser.add_argument("--reference", default=None,
                         help="stiffness reference JSON for the ridge row (default: fitted on the dataset's train split)")
+    parser.add_argument("--prior", default=None,
+                        help="rank with each model's L_task blended with this stiffness reference JSON "
+                             "(dcm/models/prior_blend.py); force columns are then empty")
+    parser.add_argument("--prior-weight", type=float, default=None, help="the blend's weight in [0, 1]")
     parser.add_argument("--per-skill", action="store_true",
                         help="add a table per skill: its L_task spread beside each predictor's R and error there")
     parser.add_argument("--out", type=Path, default=None, help="write the Markdown table here")
@@ -203,6 +207,11 @@ def main(argv: list[str] | None = None) -> str:
     if args.reference:
         overrides["reference"] = args.reference
         tag = "_".join(filter(None, [tag, "ref-" + Path(args.reference).stem]))
+    if (args.prior is None) != (args.prior_weight is None):
+        parser.error("--prior and --prior-weight go together")
+    if args.prior is not None:
+        overrides.update(prior=args.prior, prior_weight=args.prior_weight)
+        tag = "_".join(filter(None, [tag, f"prior-{Path(args.prior).stem}-w{args.prior_weight:g}"]))
     rows = collect(runs, args.dataset, args.splits, tag, **overrides)
     text = table(rows, args.splits)
     tests = significance(rows, list(runs), args.splits)

@@ -189,3 +189,30 @@ def test_evaluate_says_why_the_ridge_is_missing(baseline_ckpt: Path, tmp_path: P
     with pytest.raises(SystemExit, match="missing.json: no such file"):
         evaluate_main([f"ckpt={baseline_ckpt}", f"dataset={data}", f"reference={tmp_path / 'missing.json'}",
                        f"out={tmp_path / 'x.json'}"])
+
+
+def test_a_prior_blend_ranks_between_the_model_and_the_ridge(baseline_ckpt: Path, tiny_dataset_path: Path,
+                                                            tmp_path: Path) -> None:
+    """L = L_model^(1-w) L_ridge^w: w = 0 is the model's ranking, w = 1 the ridge's; a bad weight or a prior
+    that is not a ridge is named."""
+    from dcm.models.predict import with_prior
+
+    ref = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
+    alone = evaluate(baseline_ckpt, tiny_dataset_path, split="all")
+    ridge = evaluate(ref, tiny_dataset_path, split="all")
+    model_only = evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=ref, prior_weight=0.0)
+    assert model_only["R_within"] == pytest.approx(alone["R_within"], abs=1e-12)
+    assert model_only["prior_weight"] == 0.0 and model_only["prior"] == str(ref) and model_only["model"] == "baseline"
+    assert "force_rmse_N" not in model_only and "stiffness_ridge" in model_only["references"]
+    prior_only = evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=ref, prior_weight=1.0)
+    assert prior_only["R_within"] == pytest.approx(ridge["R_within"], abs=1e-9)
+    half = evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=ref, prior_weight=0.5)
+    assert half["per_skill"] and half["R_within"] != pytest.approx(alone["R_within"])
+    with pytest.raises(ValueError, match=r"prior_weight = 1.5 must be a number in \[0, 1\]"):
+        evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=ref, prior_weight=1.5)
+    with pytest.raises(ValueError, match=r"prior_weight = nan"):
+        evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=ref, prior_weight=float("nan"))
+    with pytest.raises(ValueError, match=f"prior = {baseline_ckpt} is not a stiffness reference JSON"):
+        evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=baseline_ckpt, prior_weight=0.5)
+    with pytest.raises(ValueError, match="ckpt=copy_demo: prior applies to a DCM or baseline checkpoint"):
+        with_prior(load_model("copy_demo"), ref, 0.5, "ckpt=copy_demo")

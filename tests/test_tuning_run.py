@@ -17,7 +17,7 @@ from dcm.models.export import checkpoint_card
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
 from dcm.tuning.compare import compare
-from dcm.tuning.objectives import SimulatorObjective
+from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
 from dcm.tuning.run import TuneConfigError, check_config, record_skill, recording_mismatch, tune, use_sampler
 
@@ -286,3 +286,37 @@ def test_tune_names_the_approach_height_of_a_preset_that_sets_one(monkeypatch: p
     assert f"approaching from {hovering.hover_m:g} m above the bowl" in message
     assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt",
                               DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True, "hover_m": 0.0})) is None
+
+
+def test_a_prior_blends_the_tuners_model_with_the_stiffness_ridge(tiny_checkpoint: Path, tiny_dataset_path: Path,
+                                                                   tmp_path: Path):
+    """prior=<ridge.json> prior_weight=w: every virtual trial's L_task is L_model^(1-w) L_ridge^w, the log
+    knows the prior and its weight, and a bad weight is named before any trial."""
+    from dcm.models.predict import predict_task_loss, with_prior
+    from dcm.models.references import main as references_main
+
+    ref = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
+    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    small = ["robot_based.n_trials=0", f"prior={ref}"]
+    results = tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=0.5"), out_dir)
+    assert results["predictor"]["prior_weight"] == 0.5
+    cfg = _config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=0.5")
+    simulator, recorded, skill = record_skill(cfg, check_config(cfg))
+    phases, objectives = TrialLog.load(out_dir / "robot_free_trials.npz").arrays()
+    stiffness = skill.schedules(phases)
+    inputs = (np.repeat(recorded.x_demo[None], len(phases), axis=0),
+              np.repeat(recorded.force_demo[None], len(phases), axis=0),
+              np.stack([simulator.attractor(recorded, k) for k in stiffness]), stiffness)
+    model = load_model(tiny_checkpoint)
+    use_sampler(model, "ddim", 5)
+    blend = with_prior(model, ref, 0.5, "test")
+    assert blend.combine(np.array([4.0]), np.array([1.0])) == pytest.approx([2.0])  # the geometric mean
+    first = 8  # robot_free.batch_size: the first batch, seeded as the tuner seeds it
+    generator = torch.Generator(device=model.device).manual_seed(batch_seed(0, 0))
+    expected = predict_task_loss(blend, *(a[:first] for a in inputs), generator=generator)
+    assert objectives[:first, 0] == pytest.approx(expected, rel=1e-6)
+    assert np.all(objectives[:, 0] != pytest.approx(load_model(ref).predict_task_loss(*inputs)))  # not the ridge alone
+    with pytest.raises(TrialLogMismatch, match="prior_weight: 0.5 -> 0.25"):
+        tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=0.25"), out_dir)
+    with pytest.raises(TuneConfigError, match=r"prior_weight = 2 must be a number in \[0, 1\]"):
+        tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=2", "overwrite=true"), out_dir)

@@ -21,7 +21,8 @@ from dcm.control.objectives import task_loss
 from dcm.models.configuration import CheckpointKindError, ModelInputError
 from dcm.models.dcm import DCM, ForceModel, _checkpoint_kind
 from dcm.models.export import checkpoint_card
-from dcm.models.references import COPY_DEMO, CopyDemo, load_reference
+from dcm.models.prior_blend import PriorBlend, check_weight
+from dcm.models.references import COPY_DEMO, CopyDemo, StiffnessRegression, load_reference
 
 
 @runtime_checkable
@@ -115,6 +116,9 @@ def predict_task_loss(predictor: Any, x_demo: Any, F_demo: Any, x_attr: Any, K: 
     samples (``ForceModel.predicted_task_loss``). Others: their ``predict_task_loss``, of the window they
     were fitted on (``StiffnessRegression.check_window``).
     """
+    if isinstance(predictor, PriorBlend):
+        L_model = predict_task_loss(predictor.model, x_demo, F_demo, x_attr, K, n_samples, generator, from_step)
+        return predictor.combine(L_model, predict_task_loss(predictor.prior, x_demo, F_demo, x_attr, K))
     if isinstance(predictor, ForcePredictor):
         kwargs = {"n_samples": n_samples} if generator is None else {"n_samples": n_samples, "generator": generator}
         mean, std = predictor.predict_forces(_numpy(x_demo), _numpy(F_demo), _numpy(x_attr), _numpy(K), **kwargs)
@@ -143,10 +147,29 @@ def describe(predictor: Any, n_samples: int | None = None) -> dict[str, Any]:
             # named only when it is not the default, so that earlier tuning logs keep their fingerprints
             **({"task_loss": predictor.cfg.task_loss} if is_dcm and predictor.cfg.task_loss != "of_mean" else {}),
         }
+    if isinstance(predictor, PriorBlend):
+        return {**describe(predictor.model, n_samples), **predictor.describe()}
     if hasattr(predictor, "describe"):
         return predictor.describe()
     return {"model": type(predictor).__name__}
 
 
+def with_prior(predictor: Any, prior: str | Path | None, weight: float, source: str) -> Any:
+    """``predictor`` blended with the stiffness ridge in the JSON file ``prior`` at ``weight``
+    (:class:`dcm.models.prior_blend.PriorBlend`); the predictor itself when ``prior`` is None. ``source``
+    names the setting in errors."""
+    if prior is None or str(prior) == "":
+        return predictor
+    if not isinstance(predictor, ForceModel):
+        raise ModelInputError(f"{source}: prior applies to a DCM or baseline checkpoint, not to "
+                              f"{describe(predictor).get('ckpt', type(predictor).__name__)}")
+    weight = check_weight(weight)
+    ridge = load_model(prior)
+    if not isinstance(ridge, StiffnessRegression):
+        raise ModelInputError(f"{source}: prior = {prior} is not a stiffness reference JSON "
+                              "(python -m dcm.models.references fit)")
+    return PriorBlend(predictor, ridge, weight)
+
+
 __all__ = ["ForcePredictor", "Predictor", "TaskLossPredictor", "check_dataset", "checkpoint_kind", "describe",
-           "load_model", "model_class", "predict_task_loss"]
+           "load_model", "model_class", "predict_task_loss", "with_prior"]

@@ -67,8 +67,9 @@ class ModelObjective:
         self.seconds_model = 0.0
 
     def generator(self, first_trial: int) -> Any:
-        """The seeded generator for the batch starting at ``first_trial`` (None for a predictor without torch)."""
-        if not hasattr(self.model, "predict_forces") or not hasattr(self.model, "device"):
+        """The seeded generator for the batch starting at ``first_trial`` (None for a predictor without torch:
+        only force models, and a force model blended with a prior, have a device)."""
+        if not hasattr(self.model, "device"):
             return None
         import torch
 

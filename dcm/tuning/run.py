@@ -335,6 +335,9 @@ def fingerprints(cfg: Any, spec: Any, domain: Any, model: Any, device: Any) -> d
         skill["task_from_s"] = float(cfg.task_from_s)
     robot = {**skill, "search": {"name": cfg.search.name, "options": _plain(cfg.search.options) or {}}}
     sampling = {k: v for k, v in describe(model, cfg.robot_free.n_samples).items() if k != "ckpt"}
+    if cfg.get("prior"):  # only when set: the trial logs of runs without a prior keep their fingerprint
+        sampling["prior_sha256"] = file_sha256(cfg.prior)
+        sampling.pop("prior", None)  # its content counts, not where it lies
     free = {**robot, "predictor_sha256": file_sha256(cfg.ckpt), "predictor": sampling,
             "n_samples": int(cfg.robot_free.n_samples), "batch_size": int(cfg.robot_free.batch_size),
             "device": getattr(device, "type", str(device))}
@@ -362,8 +365,9 @@ def record_skill(cfg: Any, checked: Any) -> tuple[Any, Any, Skill]:
 def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
     """The predictor of ``cfg.ckpt`` as the robot-free search uses it: checked against the skill (warning when
     its demo is recorded otherwise than the predictor's training demos), with ``robot_free``'s sampler, sampling
-    steps and task loss."""
-    from dcm.models.predict import load_model
+    steps and task loss, and blended with the stiffness ridge ``prior`` at ``prior_weight`` when one is given
+    (:mod:`dcm.models.prior_blend`)."""
+    from dcm.models.predict import load_model, with_prior
 
     model = load_model(cfg.ckpt, map_location=device)
     check_predictor(model, cfg)
@@ -372,6 +376,12 @@ def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
     use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
     if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
         model.set_task_loss(cfg.robot_free.task_loss)
+    if cfg.get("prior"):
+        try:
+            model = with_prior(model, cfg.prior, cfg.get("prior_weight", 0.0), source=f"tune prior={cfg.prior}")
+        except ValueError as err:
+            raise TuneConfigError(str(err)) from None
+        check_predictor(model, cfg)  # the prior's phases and L_task window
     return model
 
 
