@@ -39,8 +39,7 @@ from dcm.control.objectives import task_loss, task_window_start
 from dcm.data.schema import load_dataset
 from dcm.sim.domain import DomainSpec, DomainSpecError
 
-MIN_TRIALS = 3  # as dcm.models.metrics: a correlation over 2 points says nothing about ranking
-KEYS = ("L_task_mean_N", "L_task_sd_N", "label_noise_sd_N", "R_label_truth", "R_label_label")
+MIN_TRIALS = 3  # as dcm.models.metrics (kept here so that this check loads without torch)
 
 
 class SensorCheckError(ValueError):
@@ -59,7 +58,7 @@ def sensed_task_losses(F_obs: np.ndarray, F_demo: np.ndarray, skills: np.ndarray
     ``from_step`` on: in each session every trial's F_obs and each skill's demo force (shared by its trials)
     are read once through ``domain``'s sensor, without its bias."""
     tared = replace(domain, ft_bias=(0.0,) * 6)
-    names, first, index = np.unique(skills, return_index=True, return_inverse=True)
+    _, first, index = np.unique(skills, return_index=True, return_inverse=True)
 
     def read(forces: np.ndarray) -> np.ndarray:  # (B, H, 6); the sensor filters along time
         return np.swapaxes(tared.sense(np.swapaxes(forces, 0, 1).copy(), dt, rng), 0, 1)
