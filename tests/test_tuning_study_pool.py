@@ -55,3 +55,35 @@ def test_cli_writes_the_table_and_names_a_folder_without_a_study(tmp_path, capsy
     assert json.loads(out.with_suffix(".json").read_text())["pooled"]["tests"]["baseline"]["n_pairs"] == 6
     with pytest.raises(SystemExit, match="missing/study.json: no study.json"):
         main([f"x={tmp_path / 'missing'}"])
+
+
+def test_versus_pairs_the_subject_with_the_same_tuners_of_another_design(tmp_path, capsys):
+    prior = {"prior": [0.3, 0.3, 0.3]}  # a control that repeats in both designs joins once
+    blended = {"s0": _study([0, 1, 2], [0.5, 0.6, 0.7], [0.4, 0.5, 0.6], prior),
+               "s1": _study([0, 1, 2], [0.6, 0.7, 0.8], [0.5, 0.6, 0.7], prior)}
+    plain = {"s0": _study([0, 1, 2, 3], [0.4, 0.5, 0.6, 0.9], [0.3, 0.4, 0.5, 0.9], {"prior": [0.3] * 4}),
+             "s1": _study([0, 1, 2], [0.7, 0.8, 0.9], [0.2, 0.3, 0.4], prior)}
+    report = pool(blended, versus=plain, versus_name="no prior")
+    assert report["tuners"] == ["dcm", "baseline", "prior", "dcm (no prior)", "baseline (no prior)"]
+    test = report["pooled"]["tests"]["dcm (no prior)"]
+    assert test["n_pairs"] == 6 and (test["wins"], test["losses"]) == (3, 3)  # seed 3 is only in one study
+    assert report["per_study"]["s0"]["tests"]["dcm (no prior)"]["wins"] == 3
+    baseline_first = pool(blended, subject="baseline", versus=plain, versus_name="no prior")
+    assert baseline_first["pooled"]["tests"]["baseline (no prior)"]["wins"] == 6
+    with pytest.raises(ValueError, match=r"--versus needs one study per label \['s0', 's1'\], got \['s0'\]"):
+        pool(blended, versus={"s0": plain["s0"]})
+    other_skill = dict(plain, s1=_study([0, 1], [0.5, 0.6], [0.4, 0.5], reference={"L_task_N": 0.3, "L_comp_kNpm": 2.6}))
+    with pytest.raises(ValueError, match=r"s1 \(other design\): reference point L_task_N"):
+        pool(blended, versus=other_skill)
+    for name, studies in (("blend", blended), ("plain", plain)):
+        for label, study in studies.items():
+            (tmp_path / name / label).mkdir(parents=True)
+            (tmp_path / name / label / "study.json").write_text(json.dumps(study))
+    out = tmp_path / "pool.md"
+    main([f"s0={tmp_path / 'blend/s0'}", f"s1={tmp_path / 'blend/s1'}", "--versus", f"s0={tmp_path / 'plain/s0'}",
+          f"s1={tmp_path / 'plain/s1'}", "--versus-name", "no prior", "--out", str(out)])
+    assert "| study | DCM | baseline | prior | DCM (no prior) | baseline (no prior) |" in out.read_text()
+    assert json.loads(out.with_suffix(".json").read_text())["versus"]["name"] == "no prior"
+    main([f"s0={tmp_path / 'blend/s0'}", f"s1={tmp_path / 'blend/s1'}", "--subject", "baseline", "--out", str(out)])
+    assert "| study | baseline | DCM | prior |" in out.read_text()  # the subject's column comes first
+    capsys.readouterr()
