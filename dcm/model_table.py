@@ -109,10 +109,10 @@ def per_skill_table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: li
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     fmt = (lambda v: f"{v:.3f}" if np.isfinite(v) else "–")
     for split in splits:
-        skills = {s["skill"]: s for label in ranked for r in rows[label].get(split, [])
+        truths = {s["skill"]: s for label in ranked for r in rows[label].get(split, [])  # the same for every predictor
                   for s in r.get("per_skill", [])}
-        for skill, first in skills.items():
-            cells = [split, skill, str(first["n"]), f"{first['L_task_mean_N']:.4f}", f"{first['L_task_sd_N']:.4f}"]
+        for skill, truth in truths.items():
+            cells = [split, skill, str(truth["n"]), f"{truth['L_task_mean_N']:.4f}", f"{truth['L_task_sd_N']:.4f}"]
             for label in ranked:
                 found = [s for r in rows[label].get(split, []) for s in r.get("per_skill", []) if s["skill"] == skill]
                 error = _median([s["error_sd_N"] for s in found])

@@ -21,7 +21,7 @@ from dcm.control.objectives import task_loss
 from dcm.models.configuration import CheckpointKindError, ModelInputError
 from dcm.models.dcm import DCM, ForceModel, _checkpoint_kind
 from dcm.models.export import checkpoint_card
-from dcm.models.prior_blend import PriorBlend, check_weight
+from dcm.models.prior_blend import PriorBlend
 from dcm.models.references import COPY_DEMO, CopyDemo, StiffnessRegression, load_reference
 
 
@@ -163,12 +163,11 @@ def with_prior(predictor: Any, prior: str | Path | None, weight: float, source: 
     if not isinstance(predictor, ForceModel):
         raise ModelInputError(f"{source}: prior applies to a DCM or baseline checkpoint, not to "
                               f"{describe(predictor).get('ckpt', type(predictor).__name__)}")
-    weight = check_weight(weight)
     ridge = load_model(prior)
     if not isinstance(ridge, StiffnessRegression):
         raise ModelInputError(f"{source}: prior = {prior} is not a stiffness reference JSON "
                               "(python -m dcm.models.references fit)")
-    return PriorBlend(predictor, ridge, weight)
+    return PriorBlend(predictor, ridge, weight)  # checks the weight
 
 
 __all__ = ["ForcePredictor", "Predictor", "TaskLossPredictor", "check_dataset", "checkpoint_kind", "describe",

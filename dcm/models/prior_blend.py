@@ -43,9 +43,7 @@ class PriorBlend:
     ranks_schedules: ClassVar[bool] = True
 
     def __init__(self, model: Any, prior: StiffnessRegression, weight: float) -> None:
-        if not isinstance(prior, StiffnessRegression):
-            raise ModelInputError(f"prior: a {type(prior).__name__} is not a stiffness reference "
-                                  "(python -m dcm.models.references fit)")
+        """``prior`` must be a stiffness ridge (:func:`dcm.models.predict.with_prior` checks it, naming the file)."""
         self.model = model
         self.prior = prior
         self.weight = check_weight(weight)
