@@ -29,7 +29,7 @@ import numpy as np
 
 from dcm.control.objectives import TASK_LOSSES
 from dcm.model_study.stats import ALPHA, p_text, welch_test
-from dcm.models.export import run_checkpoint, run_finished
+from dcm.training.run_dir import run_checkpoint, run_finished
 from dcm.models.metrics import REGRET_KEY, TOP_PICKS
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
