@@ -13,8 +13,8 @@ import torch
 from dcm import __version__
 from dcm.models.configuration import CheckpointIncompatibleError, CheckpointVersionWarning
 from dcm.models.dcm import VERSION_KEY
-from dcm.training.export import checkpoint_card, export_checkpoint, main
 from dcm.models.predict import load_model
+from dcm.training.export import checkpoint_card, export_checkpoint, main
 
 
 def _inputs(seed: int = 0, horizon: int = 16) -> tuple[np.ndarray, ...]:

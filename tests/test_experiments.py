@@ -6,16 +6,14 @@ sweep's earlier runs had spent their hours.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from dcm.training.train import new_model
 
-from train import new_model  # noqa: E402 - train.py is a script at the repository root
+REPO = Path(__file__).resolve().parents[1]
 EXPERIMENTS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*.yaml"))
 
 

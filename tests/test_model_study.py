@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
@@ -13,9 +12,7 @@ from test_train_cli import REPO, TINY, _run
 from dcm.cli import config_diff
 from dcm.model_study.__main__ import main as study_main
 from dcm.model_study.stats import welch_test
-
-sys.path.insert(0, str(REPO))
-from train import with_added_option_defaults  # noqa: E402 - train.py is a script at the repository root
+from dcm.training.train import with_added_option_defaults
 
 # 2 settings x 2 seeds of the diffusion-steps study, 1 epoch each; T = 30 is the study's reference setting
 SWEEP = ["-m", "+experiment=diffusion_steps", "model.diffusion_steps=1,30", "seed=0,1"]
@@ -24,7 +21,7 @@ SWEEP = ["-m", "+experiment=diffusion_steps", "model.diffusion_steps=1,30", "see
 @pytest.fixture(scope="module")
 def study(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
     root = tmp_path_factory.mktemp("study")
-    args = [str(REPO / "train.py"), *SWEEP, "data=path", f"data.path={tiny_dataset_path}", *TINY,
+    args = [str(REPO / "train.py"), *SWEEP, f"data.path={tiny_dataset_path}", *TINY,
             f"hydra.sweep.dir={root / 'sweep'}"]
     _run(args, cwd=root)
     return root, args
@@ -112,7 +109,7 @@ def test_usage_rate_study_fits_the_ridge_on_each_runs_own_training_subset(tiny_d
     from dcm.data.datamodule import DCMDataModule
 
     _run([str(REPO / "train.py"), "-m", "+experiment=usage_rate", "model=baseline", "usage_rate=0.5,1.0", "seed=3",
-          "data=path", f"data.path={tiny_dataset_path}", *TINY, f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+          f"data.path={tiny_dataset_path}", *TINY, f"hydra.sweep.dir={tmp_path / 'sweep'}"],
          cwd=tmp_path)
     result = json.loads(study_main([str(tmp_path / "sweep"), "--out", str(tmp_path / "report")])["json"].read_text())
     ridges = {c["values"]["usage_rate"]: c for c in result["cells"] if c["values"]["model"] == "stiffness_ridge"}

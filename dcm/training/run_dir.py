@@ -80,7 +80,8 @@ def run_checkpoint(run_dir: Path) -> Path:
             return Path(best)
     last = last_checkpoint(run_dir)
     if not last.is_file():
-        raise FileNotFoundError(f"{run_dir}: no {SUMMARY_FILE} best_checkpoint and no {CHECKPOINT_DIR}/{LAST_CHECKPOINT}")
+        raise FileNotFoundError(f"{run_dir}: no {SUMMARY_FILE} best_checkpoint and no "
+                                f"{CHECKPOINT_DIR}/{LAST_CHECKPOINT}")
     return last
 
 
