@@ -67,13 +67,13 @@ def test_finetune_keeps_the_pretraining_normaliser_and_resume_continues(sweep: P
     ckpt = next(sweep.glob("1_*/checkpoints/last.ckpt"))
     run = tmp_path / "ft"
     # net, T and normaliser come from init_from whatever the command line says; the optimiser's fields apply
-    not_applied = ["net.d_model=64", "model.diffusion_steps=5", "model.normalization=zscore"]
+    not_applied = ["net.d_model=64", "model.diffusion_steps=5", "model.normalization=minmax"]
     tiny = [arg for arg in TINY if not arg.startswith("net.d_model=")]
     _run([str(REPO / "train.py"), "stage=finetune", f"init_from={ckpt}", *not_applied, "model.lr=5e-4",
           f"data.path={tiny_dataset_path}", "usage_rate=0.5", *tiny, f"hydra.run.dir={run}"], cwd=tmp_path)
     saved = yaml.safe_load((run / "config.yaml").read_text())  # what was trained, not the unused overrides
     assert saved["net"]["d_model"] == 32 and saved["model"]["diffusion_steps"] == 2
-    assert saved["model"]["normalization"] == "minmax" and saved["model"]["lr"] == 5e-4
+    assert saved["model"]["normalization"] == "zscore" and saved["model"]["lr"] == 5e-4
     pre = torch.load(ckpt, map_location="cpu", weights_only=True)["state_dict"]
     ft = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
     for key in ("target_norm.scale", "target_norm.center", "cond_norm.scale"):
