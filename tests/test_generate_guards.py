@@ -101,12 +101,12 @@ def test_bad_waypoint_file_fails_in_one_line_and_leaves_nothing(tmp_path: Path) 
 
 
 def test_a_failed_run_leaves_no_empty_part_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from dcm.data import generate as generate_module
+    from dcm.data import generate_workers
 
     def broken(self, job, job_fingerprint, on_trial=lambda: None):
         raise RuntimeError("simulator exploded")
 
-    monkeypatch.setattr(generate_module.DemoRunner, "run", broken)
+    monkeypatch.setattr(generate_workers.DemoRunner, "run", broken)
     with pytest.raises(GenerationError, match="simulator exploded"):
         generate(compose_config("tiny", [f"out={tmp_path / 'x.h5'}", *SMALL]))
     assert list(tmp_path.iterdir()) == []
