@@ -14,6 +14,7 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the Hydra configs of the entry points
 DEVICE_CHOICES = "auto, cpu, cuda, cuda:<index> or mps"
 
 

@@ -12,7 +12,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from dcm.models.configuration import DataSpec
-from dcm.tuning.run import TuneConfigError, check_config, check_predictor, min_compliance_loss
+from dcm.tuning.checks import TuneConfigError, check_config, check_predictor, min_compliance_loss
 
 REPO = Path(__file__).resolve().parents[1]
 OK = ["ckpt=some.ckpt", "embodiment=tool"]

@@ -19,7 +19,8 @@ from dcm.sim.demos import DemoSpec
 from dcm.tuning.compare import compare
 from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
-from dcm.tuning.run import TuneConfigError, check_config, record_skill, recording_mismatch, tune, use_sampler
+from dcm.tuning.checks import TuneConfigError, check_config, recording_mismatch
+from dcm.tuning.run import record_skill, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -35,6 +35,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Sequence
 
+from dcm.cli import CONF_DIR
 from dcm.data.generate_checks import (GenerationError, build_settings, check_demos, check_embodiment,
                                       check_run_settings, check_stiffness_settings, existing_output_is_current)
 from dcm.data.generate_workers import (claim_work_dir, finished_jobs, job_fingerprints, mark_work_dir,
@@ -45,7 +46,6 @@ from dcm.data.schema import DatasetError
 from dcm.search import check_budget
 from dcm.sim.domain import DomainSpec
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 REPO_ROOT = CONF_DIR.parent
 
 
