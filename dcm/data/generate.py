@@ -152,7 +152,7 @@ def compose_config(preset: str, overrides: Sequence[str] = ()) -> Any:
     outer = get_gh_backup()  # e.g. train.py's own Hydra app: put it back afterwards
     GlobalHydra.instance().clear()
     try:
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+        with initialize_config_dir(config_dir=str(CONF_DIR)):
             return compose(config_name="generate", overrides=[f"dataset={preset}", *overrides])
     finally:
         restore_gh_from_backup(outer)
@@ -173,7 +173,7 @@ def main() -> None:
     one ``error: ...`` line on stderr and exit code 2."""
     import hydra
 
-    @hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="generate")
+    @hydra.main(config_path=str(CONF_DIR), config_name="generate")
     def run(cfg: Any) -> None:
         try:
             generate(cfg)
