@@ -35,7 +35,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Sequence
 
-from dcm.cli import CONF_DIR
+from dcm.cli import CONF_DIR, quiet_libraries
 from dcm.data.generate_checks import (GenerationError, build_settings, check_demos, check_embodiment,
                                       check_run_settings, check_stiffness_settings, existing_output_is_current)
 from dcm.data.generate_workers import (claim_work_dir, finished_jobs, job_fingerprints, mark_work_dir,
@@ -139,7 +139,7 @@ def generate(cfg: Any) -> Path:
     if not cfg.keep_parts:
         release_work_dir(work_dir, part_files)
     print(f"wrote {out}: {n} trajectories from {len(jobs)} demos ({len(pending)} generated now in {elapsed:.1f} s, "
-          f"dcm {__version__})", file=sys.stderr)
+          f"dcm {__version__})")
     return out
 
 
@@ -175,6 +175,7 @@ def main() -> None:
 
     @hydra.main(config_path=str(CONF_DIR), config_name="generate")
     def run(cfg: Any) -> None:
+        quiet_libraries()
         try:
             generate(cfg)
         except (GenerationError, DatasetError, MergeError) as err:

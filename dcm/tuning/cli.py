@@ -13,12 +13,13 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR
+from dcm.cli import CONF_DIR, quiet_libraries
 
 
 # An absolute config path: a relative one would be looked up as a Python package once this is imported as a module.
 @hydra.main(config_path=str(CONF_DIR), config_name="tune")
 def main(cfg: DictConfig) -> None:
+    quiet_libraries()
     from dcm.tuning.run import tune
 
     try:
