@@ -1,6 +1,6 @@
 """Generate a dataset: per demo, a robot-based multi-objective stiffness search whose every trial is kept.
 
-    python -m dcm.data.generate                                   # sim preset, panda, MOTPE, 2 workers
+    python -m dcm.data.generate                                   # conf/generate.yaml as it stands
     python -m dcm.data.generate dataset=realistic
     python -m dcm.data.generate dataset=tiny embodiment=tool n_trials=5 workers=1 out=/tmp/t.h5
     python -m dcm.data.generate search=random seed=3 stiffness.n_phases=4 stiffness.max_Npm=2000

@@ -1,4 +1,4 @@
-"""What :mod:`dcm.data.generate` checks before any simulation starts, so a bad setting fails in a second.
+"""What :mod:`dcm.data.generate` checks before any simulation starts, so a bad setting fails at once.
 
 The run's own settings, the stiffness search, the embodiment, every demo spec, and an existing output file
 against the configuration that would overwrite it.
@@ -110,7 +110,7 @@ def check_stiffness_settings(settings: dict[str, Any]) -> StiffnessSearch:
 def check_demos(jobs: Sequence[DemoJob], control_hz: float, stiffness: dict[str, Any]) -> None:
     """Every demo spec (and waypoint file) parses, stays inside its bowl and has room for the phases.
 
-    Cheap (no simulator), so a bad file or value fails in a second, not after the demos before it ran."""
+    Cheap (no simulator), so a bad file or value fails at once, not after the demos before it ran."""
     from dcm.control.schedule import phase_boundaries
     from dcm.sim.demos import DemoSpec, DemoSpecError
 
