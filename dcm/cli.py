@@ -36,7 +36,7 @@ def resolve_device(name: str, option: str = "device") -> "Any":
     """The ``torch.device`` for a setting (``auto``: cuda, else mps, else cpu).
 
     ``option`` is the setting's name as the user types it (``device``, ``trainer.accelerator`` ...) and appears
-    in the error, e.g. ``device=cuda: CUDA is not available on this machine (torch 2.13.0+cpu); use device=cpu
+    in the error, e.g. ``device=cuda: CUDA is not available on this machine (torch <version>+cpu); use device=cpu
     or device=auto``.
     """
     import torch

@@ -98,7 +98,7 @@ class CheckedConfig:
 def check_config(cfg: Any) -> CheckedConfig:
     """Check every setting of ``conf/tune.yaml`` that can be checked without the model or the simulator.
 
-    Takes well under a second; raises :class:`TuneConfigError` (or the demo/domain spec's own ValueError)
+    Runs before any costly work; raises :class:`TuneConfigError` (or the demo/domain spec's own ValueError)
     with one line naming the setting.
     """
     from omegaconf import OmegaConf

@@ -1,8 +1,8 @@
 """Robot-free stiffness tuning of one new skill, validated in the simulator and compared with robot-based search.
 
 Steps (each resumable from the run directory):
-0. check every setting (:func:`check_config`), load the predictor and check it against the skill, and check
-   that the run directory's trial logs were written by these settings (their *fingerprint*);
+0. check every setting (:func:`dcm.tuning.checks.check_config`), load the predictor and check it against the
+   skill, and check that the run directory's trial logs were written by these settings (their *fingerprint*);
 1. record the new skill's demo in the simulator;
 2. robot-free search: ``robot_free.n_trials`` virtual trials, L_task predicted by the checkpoint (or by a
    stiffness reference JSON, ``python -m dcm.models.references fit``; ``copy_demo`` is refused: it ranks nothing);
@@ -72,16 +72,15 @@ def solution_record(phase_stiffness: np.ndarray, validated: np.ndarray, **measur
 
 # ----------------------------------------------------------------------------------------------- predictor
 def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | None = None) -> bool:
-    """Make a loaded DCM sample with ``sampler`` over ``sampling_steps`` denoising steps, in this process only.
+    """Make a loaded DCM sample with ``sampler`` over ``sampling_steps`` denoising steps, in this process only
+    (:meth:`dcm.models.dcm.DCM.set_sampler`; the checkpoint file is untouched): a run trades the full chain's
+    accuracy for speed without a new checkpoint.
 
     ``sampler``: ``"ddpm"`` (ancestral) or ``"ddim"`` (deterministic given the start noise); None keeps the
     checkpoint's. ``sampling_steps``: steps of the chain (DDIM: must divide T); None keeps the checkpoint's
-    when the sampler is unchanged, else T. :meth:`dcm.models.dcm.DCM.set_sampler` does the switch: it builds
-    the scheduler the way ``DCM.__init__`` does (``dcm.models.diffusion.make_scheduler`` with the model's noise
-    schedule, T and prediction type) and sets ``model.sample_scheduler`` and ``model.cfg.sampler`` /
-    ``model.cfg.sampling_steps``; the checkpoint file is not touched. Predictors that do not diffuse (baseline,
-    stiffness reference) are left alone. Returns whether ``model`` was changed; raises
-    :class:`TuneConfigError` naming ``robot_free.sampling_steps`` for a step count the sampler cannot run.
+    when the sampler is unchanged, else T. Predictors that do not diffuse (baseline, stiffness reference) are
+    left alone. Returns whether ``model`` was changed; raises :class:`TuneConfigError` naming
+    ``robot_free.sampling_steps`` for a step count the sampler cannot run.
     """
     from dcm.models.dcm import DCM
 
@@ -201,7 +200,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     notes = {"predictor": str(cfg.ckpt), "model": type(model).__name__}
     out_dir.mkdir(parents=True, exist_ok=True)
     free_path, robot_path = out_dir / FREE_LOG, out_dir / ROBOT_LOG
-    # Refuse another run's logs now, not after recording the demo and an hour of trials.
+    # Refuse another run's logs now, not after recording the demo and running the trials.
     resumable_log(free_path, prints["robot_free"], overwrite, notes)
     if cfg.robot_based.n_trials > 0:
         resumable_log(robot_path, prints["robot_based"], overwrite)
