@@ -19,7 +19,7 @@ OK = ["ckpt=some.ckpt", "embodiment=tool"]
 
 
 def _cfg(*overrides: str):
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         return compose("tune", overrides=[*OK, *overrides])
 
 
@@ -69,7 +69,7 @@ def test_zero_robot_trials_skip_rather_than_fail_and_a_reachable_reference_point
 
 
 def test_a_missing_checkpoint_setting_is_named():
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("tune", overrides=["embodiment=tool"])
     with pytest.raises(TuneConfigError, match="ckpt is required"):
         check_config(cfg)
