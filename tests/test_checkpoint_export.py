@@ -12,7 +12,7 @@ import torch
 
 from dcm import __version__
 from dcm.models.configuration import CheckpointIncompatibleError, CheckpointVersionWarning
-from dcm.models.dcm import VERSION_KEY
+from dcm.models.checkpoint import VERSION_KEY
 from dcm.models.export import checkpoint_card, export_checkpoint, main
 from dcm.models.predict import load_model
 

@@ -22,7 +22,7 @@ import torch
 
 from dcm import __version__
 from dcm.models.configuration import CheckpointVersionWarning, ModelInputError
-from dcm.models.dcm import KIND_KEY, VERSION_KEY, read_checkpoint
+from dcm.models.checkpoint import KIND_KEY, VERSION_KEY, read_checkpoint
 
 CARD_KEY = "dcm_card"
 KEEP_KEYS = ("pytorch-lightning_version", "state_dict", "hparams_name", "hyper_parameters", KIND_KEY)

@@ -19,8 +19,10 @@ import numpy as np
 
 from dcm.control.objectives import task_loss
 from dcm.models.configuration import CheckpointKindError, ModelInputError
-from dcm.models.dcm import DCM, ForceModel, _checkpoint_kind
+from dcm.models.checkpoint import _checkpoint_kind
+from dcm.models.dcm import DCM
 from dcm.models.export import checkpoint_card
+from dcm.models.force_model import ForceModel
 from dcm.models.prior_blend import PriorBlend
 from dcm.models.references import COPY_DEMO, CopyDemo, StiffnessRegression, load_reference
 
