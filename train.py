@@ -48,12 +48,11 @@ from dcm.data.datamodule import DCMDataModule
 from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
 from dcm.models.callbacks import ForceMetricsCallback, RandomStateCallback, RunETACallback
-from dcm.models.checkpoint import read_checkpoint
+from dcm.models.checkpoint import checkpoint_kind, read_checkpoint
 from dcm.models.configuration import CheckpointKindError
 from dcm.models.dcm import DCM
 from dcm.models.force_model import ForceModel
 from dcm.models.nets import get_score_net_class
-from dcm.models.predict import checkpoint_kind
 
 log = logging.getLogger("dcm.train")
 

@@ -11,8 +11,7 @@ import pytest
 
 from dcm.data.recording import Recording, file_recording, preset_recording
 from dcm.models.configuration import CheckpointVersionWarning
-from dcm.models.export import checkpoint_card
-from dcm.models.model_card import card_markdown
+from dcm.models.checkpoint import card_markdown, checkpoint_card
 from dcm.models.predict import load_model, predict_task_loss, trained_on
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -31,7 +30,7 @@ def test_every_documented_predictor_is_shipped_and_the_card_matches_the_files() 
     for name in SHIPPED:
         assert (MODELS / name).is_file(), name
     assert (MODELS / "README.md").read_text() == card_markdown(MODELS), \
-        "models/README.md is stale: python -m dcm.models.model_card models/ > models/README.md"
+        "models/README.md is stale: python -m dcm.models.checkpoint card models/"
 
 
 @pytest.mark.parametrize("name", SHIPPED)

@@ -13,7 +13,7 @@ import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from dcm.models.export import checkpoint_card
+from dcm.models.checkpoint import checkpoint_card
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
 from dcm.tuning.compare import compare

@@ -1,21 +1,36 @@
-"""The checkpoint file: reading it, and what wrote it (model kind, code version).
+"""The checkpoint file: reading it, what wrote it (model kind, code version), its card, and the slim export.
 
-Every dcm checkpoint is read here, so the checks on what a file holds are made in one place.
+Every dcm checkpoint is read here, so the checks on what a file holds are made in one place. A shipped
+checkpoint is *slim*: weights, normalisers and hyper-parameters, without the optimiser state, loops and
+callbacks a training checkpoint carries (3x the weights), plus a card (``dcm_card``) naming the dataset, the
+recipe and what the weights were selected on. The card of a folder of shipped predictors is its README::
+
+    python -m dcm.models.checkpoint card models/      # rewrites models/README.md from the files
 """
 
 from __future__ import annotations
 
+import json
+import sys
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 
 from dcm import __version__
-from dcm.models.configuration import CheckpointIncompatibleError, CheckpointVersionWarning, ModelInputError
+from dcm.models.configuration import (
+    CheckpointIncompatibleError,
+    CheckpointKindError,
+    CheckpointVersionWarning,
+    ModelInputError,
+)
 
 KIND_KEY = "dcm_model_kind"  # checkpoint key naming the class that wrote it
 VERSION_KEY = "dcm_version"  # checkpoint key naming the code version that wrote it
+CARD_KEY = "dcm_card"  # checkpoint key holding the card of an exported checkpoint
+KEEP_KEYS = ("pytorch-lightning_version", "state_dict", "hparams_name", "hyper_parameters", KIND_KEY)
+
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """A checkpoint's raw dict, checked to be a Lightning checkpoint; one-line errors name ``path``."""
@@ -37,6 +52,14 @@ def _checkpoint_kind(path: str | Path) -> tuple[str | None, dict[str, Any]]:
     return ckpt.get(KIND_KEY), dict(ckpt.get("hyper_parameters") or {})
 
 
+def checkpoint_kind(path: str | Path) -> str:
+    """The model kind a checkpoint was written by; raises if it is not a dcm force-model checkpoint."""
+    kind, _ = _checkpoint_kind(path)
+    if kind is None:
+        raise CheckpointKindError(f"checkpoint {path} was not written by a dcm force model (no model kind)")
+    return str(kind)
+
+
 def check_code_version(path: str | Path, written_by: str | None) -> None:
     """Warn when a checkpoint comes from another dcm version: it loads, but its numbers may differ."""
     if written_by != __version__:
@@ -56,6 +79,107 @@ def _incompatible(path: str | Path, written_by: str | None, err: RuntimeError) -
         f"parameter names changed: {detail}. Retrain, or load it with the dcm version that wrote it")
 
 
+def checkpoint_card(path: str | Path) -> dict[str, Any]:
+    """The card stored in an exported checkpoint ({} for a training checkpoint), with its kind and version."""
+    raw = read_checkpoint(path)
+    return {"kind": raw.get(KIND_KEY), "dcm_version": raw.get(VERSION_KEY), **(raw.get(CARD_KEY) or {})}
 
 
-__all__ = ["KIND_KEY", "VERSION_KEY", "check_code_version", "read_checkpoint"]
+def export_checkpoint(source: str | Path, out: str | Path, card: dict[str, Any] | None = None,
+                      verify: Callable[[Path], Any] | None = None) -> Path:
+    """Write the slim checkpoint of the checkpoint ``source`` to ``out``, stamped with this code's version and
+    carrying ``card``.
+
+    ``verify(source)`` should build the model with this code (the export command passes
+    :func:`dcm.models.predict.load_model`, which refuses parameter names the code does not know), so that
+    the stamped version is one known to load the weights. It is passed in because this module sits below
+    the model classes.
+    """
+    source, out = Path(source), Path(out)
+    raw = read_checkpoint(source)
+    if verify is not None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CheckpointVersionWarning)  # the card records the writer's version
+            verify(source)
+    slim = {key: raw[key] for key in KEEP_KEYS if key in raw}
+    slim[VERSION_KEY] = __version__
+    slim[CARD_KEY] = {**(card or {}), "exported_from": {"checkpoint": source.name,
+                                                        "written_by_dcm": raw.get(VERSION_KEY)}}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.save(slim, tmp)
+    tmp.replace(out)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- the card
+NOT_SHIPPED = "## Not shipped, reproducible"  # the README's hand-written part starts here; the card keeps it
+
+
+def _number(value: Any) -> str:
+    return "–" if value is None or value != value else f"{value:.3f}"  # value != value: nan
+
+
+def _checkpoint_row(path: Path) -> str:
+    card = checkpoint_card(path)
+    data = card.get("dataset") or {}
+    selected = card.get("selected_on") or {}
+    return (f"| `{path.name}` | {card.get('kind')} ({card.get('stage')}) | `{data.get('path')}` "
+            f"({data.get('plan_fingerprint')}), {card.get('n_train_used')} trajectories | "
+            f"`{card.get('train_command')}` | {selected.get('monitor')} = {_number(selected.get('value'))} "
+            f"at `{selected.get('checkpoint')}` |")
+
+
+def _reference_row(path: Path) -> str:
+    data = json.loads(path.read_text())
+    fit = data.get("fit") or {}
+    dataset = fit.get("dataset") or {}
+    name = Path(str(dataset.get("path"))).name
+    options = [f"--split {fit['split']}"] if fit.get("split", "train") != "train" else []
+    options += [] if fit.get("cv") else [f"--alpha {fit.get('alpha'):g}"]
+    options += [f"--task-from-s {fit['task_from_s']:g}"] if fit.get("task_from_s") else []
+    command = " ".join(["python -m dcm.models.references fit", f"--dataset data/{name}",
+                        f"--out {path.parent.name}/{path.name}", *options])
+    cv = fit.get("cv") or {}
+    selected = (f"alpha = {fit.get('alpha'):g} by {cv.get('n_folds')}-fold grouped cross-validation on "
+                f"{fit.get('split')}" if cv else "least squares, alpha given")
+    return (f"| `{path.name}` | {data.get('kind')} (format {data.get('version')}) | `{name}` "
+            f"({(dataset.get('attrs') or {}).get('plan_fingerprint')}), {fit.get('n_trajectories')} trajectories | "
+            f"`{command}` | {selected} |")
+
+
+def card_markdown(folder: str | Path) -> str:
+    """The README of a folder of shipped predictors, from the files alone: a row per checkpoint (its card)
+    and per reference JSON (its fit record), then the README's hand-written part from ``NOT_SHIPPED`` on."""
+    folder = Path(folder)
+    lines = ["# Shipped predictors", "",
+             f"Written by `python -m dcm.models.checkpoint card {folder.name}/` from the files' own records. "
+             "A checkpoint is the run's selected checkpoint (on the validation split), exported with "
+             "`python -m dcm.models.export <run_dir> <file>`.", "",
+             "| file | kind | trained on (plan fingerprint) | recipe | selected on |", "|---|---|---|---|---|"]
+    lines += [_checkpoint_row(path) for path in sorted(folder.glob("*.ckpt"))]
+    lines += [_reference_row(path) for path in sorted(folder.glob("*.json"))]
+    text = "\n".join(lines) + "\n"
+    readme = folder / "README.md"
+    kept = readme.read_text().partition(NOT_SHIPPED) if readme.is_file() else ("", "", "")
+    return text + ("\n" + kept[1] + kept[2] if kept[1] else "")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 2 or args[0] != "card" or not Path(args[1]).is_dir():
+        print(f"usage: python -m dcm.models.checkpoint card <folder of shipped predictors>; got {args}",
+              file=sys.stderr)
+        return 1
+    readme = Path(args[1]) / "README.md"
+    readme.write_text(card_markdown(args[1]))
+    print(f"wrote {readme}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = ["CARD_KEY", "KEEP_KEYS", "KIND_KEY", "NOT_SHIPPED", "VERSION_KEY", "card_markdown", "check_code_version",
+           "checkpoint_card", "checkpoint_kind", "export_checkpoint", "read_checkpoint"]
