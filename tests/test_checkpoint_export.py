@@ -44,7 +44,7 @@ def test_export_is_slim_predicts_the_same_and_carries_its_card(run_dir: Path, tm
     assert main([str(run_dir), str(out), "--name", "dcm_tiny"]) == 0
     source = run_dir / "checkpoints" / "epoch000.ckpt"
     assert out.stat().st_size < source.stat().st_size
-    raw = torch.load(out, weights_only=False)
+    raw = torch.load(out, weights_only=True)
     assert "optimizer_states" not in raw and raw[VERSION_KEY] == __version__
 
     inputs = _inputs()
@@ -60,7 +60,7 @@ def test_export_is_slim_predicts_the_same_and_carries_its_card(run_dir: Path, tm
 
 
 def test_another_code_version_warns_naming_both(tiny_checkpoint: Path, tmp_path: Path) -> None:
-    raw = torch.load(tiny_checkpoint, weights_only=False)
+    raw = torch.load(tiny_checkpoint, weights_only=True)
     raw[VERSION_KEY] = "0.0.1"
     old = tmp_path / "old.ckpt"
     torch.save(raw, old)
@@ -72,7 +72,7 @@ def test_another_code_version_warns_naming_both(tiny_checkpoint: Path, tmp_path:
 
 
 def test_renamed_parameters_fail_with_a_clear_error(tiny_checkpoint: Path, tmp_path: Path) -> None:
-    raw = torch.load(tiny_checkpoint, weights_only=False)
+    raw = torch.load(tiny_checkpoint, weights_only=True)
     state = raw["state_dict"]
     name = next(iter(state))
     state["old_" + name] = state.pop(name)

@@ -169,7 +169,7 @@ def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoin
     assert first["predictor"]["sampler"] == "ddim" and first["predictor"]["sampling_steps"] == 5  # the default
     # another checkpoint: the same model with one weight changed (as a baseline's file would differ)
     other_ckpt = tmp_path / "other.ckpt"
-    saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=False)
+    saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=True)
     name = next(k for k, v in saved["state_dict"].items() if v.is_floating_point())
     saved["state_dict"][name] = saved["state_dict"][name] + 0.01
     torch.save(saved, other_ckpt)

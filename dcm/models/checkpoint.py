@@ -1,6 +1,8 @@
 """The checkpoint file: reading it, what wrote it (model kind, code version), its card, and the slim export.
 
-Every dcm checkpoint is read here, so the checks on what a file holds are made in one place. A shipped
+Every dcm checkpoint is read here, as plain data: ``torch.load(weights_only=True)`` rebuilds tensors and
+plain containers only, so a file from elsewhere cannot run code when it is loaded (a pickle can name any
+callable). Checkpoints that dcm writes need nothing more, so no type is added to torch's allow-list. A shipped
 checkpoint is *slim*: weights, normalisers and hyper-parameters, without the optimiser state, loops and
 callbacks a training checkpoint carries (3x the weights), plus a card (``dcm_card``) naming the dataset, the
 recipe and what the weights were selected on. The card of a folder of shipped predictors is its README::
@@ -11,6 +13,8 @@ recipe and what the weights were selected on. The card of a folder of shipped pr
 from __future__ import annotations
 
 import json
+import pickle
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -22,6 +26,7 @@ from dcm import __version__
 from dcm.models.configuration import (
     CheckpointIncompatibleError,
     CheckpointKindError,
+    CheckpointUnsafeError,
     CheckpointVersionWarning,
     ModelInputError,
 )
@@ -32,15 +37,34 @@ CARD_KEY = "dcm_card"  # checkpoint key holding the card of an exported checkpoi
 KEEP_KEYS = ("pytorch-lightning_version", "state_dict", "hparams_name", "hyper_parameters", KIND_KEY)
 
 
+def _unpickled(err: pickle.UnpicklingError) -> str:
+    """What torch's weights-only reader refused to rebuild, from its message."""
+    text = str(err)
+    if found := re.search(r"GLOBAL ([\w.]+)", text):
+        return found.group(1)
+    if found := re.search(r"Unsupported operand (\d+)", text):
+        return f"pickle opcode {found.group(1)}"
+    return "objects other than tensors and plain containers"
+
+
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """A checkpoint's raw dict, checked to be a Lightning checkpoint; one-line errors name ``path``."""
+    """A checkpoint's raw dict, read as plain data and checked to be a Lightning checkpoint.
+
+    A file that needs more than plain data raises :class:`CheckpointUnsafeError` without running any of it;
+    every error is one line naming ``path``.
+    """
     path = Path(path)
     if not path.is_file():
         raise ModelInputError(f"checkpoint {path} does not exist")
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as err:  # noqa: BLE001 - any unpickling failure means "not a usable checkpoint"
-        raise ModelInputError(f"checkpoint {path} is not readable: {err}") from err
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        if "weights only" not in str(err).lower():
+            raise ModelInputError(f"checkpoint {path} is not readable: {' '.join(str(err).split())}") from err
+        raise CheckpointUnsafeError(f"{path}: not a plain-data dcm checkpoint (would unpickle {_unpickled(err)}); "
+                                    "refusing to load it") from None
+    except Exception as err:  # noqa: BLE001 - a truncated or foreign file: not a usable checkpoint
+        raise ModelInputError(f"checkpoint {path} is not readable: {' '.join(str(err).split())}") from err
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise ModelInputError(f"checkpoint {path} is not a Lightning checkpoint (no state_dict)")
     return ckpt
@@ -181,5 +205,5 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["CARD_KEY", "KEEP_KEYS", "KIND_KEY", "NOT_SHIPPED", "VERSION_KEY", "card_markdown", "check_code_version",
-           "checkpoint_card", "checkpoint_kind", "export_checkpoint", "read_checkpoint"]
+__all__ = ["CARD_KEY", "KEEP_KEYS", "KIND_KEY", "NOT_SHIPPED", "VERSION_KEY", "CheckpointUnsafeError", "card_markdown",
+           "check_code_version", "checkpoint_card", "checkpoint_kind", "export_checkpoint", "read_checkpoint"]

@@ -36,6 +36,10 @@ class CheckpointIncompatibleError(ModelInputError):
     """A checkpoint's parameter names do not fit this code (written by another dcm version)."""
 
 
+class CheckpointUnsafeError(ModelInputError):
+    """A file that holds more than plain data: reading it would run code, so it is not read."""
+
+
 class CheckpointVersionWarning(UserWarning):
     """A checkpoint was written by another dcm version: it loads, but its behaviour may differ."""
 

@@ -57,8 +57,9 @@ class ForceModel(L.LightningModule):
     # ------------------------------------------------------------------ checkpoint identity
     @classmethod
     def load_from_checkpoint(cls, checkpoint_path: str | Path, map_location: Any = None, **kwargs: Any):  # type: ignore[override]
-        """Load a checkpoint written by this class. Another model's checkpoint, or one whose parameter names
-        no longer fit the code, raises a ModelInputError; one from another dcm version warns, naming both."""
+        """Load a checkpoint written by this class, as plain data only (:func:`read_checkpoint`). Another model's
+        checkpoint, one whose parameter names no longer fit the code, or a file that would run code raises a
+        ModelInputError; one from another dcm version warns, naming both."""
         ckpt = read_checkpoint(checkpoint_path)
         kind, written_by = ckpt.get(KIND_KEY), ckpt.get(VERSION_KEY)
         if kind != cls.model_kind:
@@ -67,7 +68,8 @@ class ForceModel(L.LightningModule):
                 "load it with its own class or with dcm.models.predict.load_model, which picks the class")
         check_code_version(checkpoint_path, written_by)
         try:
-            return super().load_from_checkpoint(checkpoint_path, map_location=map_location or "cpu", **kwargs)
+            return super().load_from_checkpoint(checkpoint_path, map_location=map_location or "cpu",
+                                                **{**kwargs, "weights_only": True})
         except RuntimeError as err:
             if "state_dict" not in str(err):
                 raise

@@ -31,6 +31,7 @@ import numpy as np
 from scipy import linalg
 
 from dcm.control.objectives import task_loss, task_window_start
+from dcm.models.configuration import ModelInputError
 from dcm.models.metrics import within_skill_correlation
 from dcm.models.stiffness_features import FEATURE_SPEC, batch_phase_values, feature_names, features
 
@@ -42,7 +43,7 @@ ALPHAS = tuple(10.0 ** np.arange(-3, 4))  # ridge strengths tried by grouped cro
 GROUP_KEY = "demo_id"
 
 
-class ReferenceError(ValueError):
+class ReferenceError(ModelInputError):
     """A reference file or fit is unusable; the message names the file and field."""
 
 
