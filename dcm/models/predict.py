@@ -137,7 +137,7 @@ def describe(predictor: Any, n_samples: int | None = None) -> dict[str, Any]:
             "sampling_steps": (predictor.cfg.sampling_steps or predictor.cfg.diffusion_steps) if is_dcm else 1,
             "n_samples": k,
             "net": predictor.cfg.net.get("name"),
-            # named only when it is not the default, so that earlier tuning logs keep their fingerprints
+            # named only when it is not the default, so a log of the default's fingerprint does not depend on it
             **({"task_loss": predictor.cfg.task_loss} if is_dcm and predictor.cfg.task_loss != "of_mean" else {}),
         }
     if isinstance(predictor, PriorBlend):
