@@ -1,4 +1,4 @@
-"""Export a train.py run as a slim, self-describing checkpoint to ship (the format: :mod:`dcm.models.checkpoint`).
+"""Export a train.py run as a slim, self-describing checkpoint to ship (its format: dcm.models.checkpoint).
 
     python -m dcm.models.export outputs/train/<run> models/dcm_diverse_contact.ckpt
 
