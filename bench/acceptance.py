@@ -26,7 +26,7 @@ sys.path.insert(0, str(REPO))
 from dcm.data.recording import Recording, file_recording, preset_recording  # noqa: E402
 from dcm.evaluate import evaluate  # noqa: E402
 from dcm.model_table import INTERVAL, cell, interval_cell  # noqa: E402
-from dcm.models.export import checkpoint_card  # noqa: E402
+from dcm.models.checkpoint import checkpoint_card  # noqa: E402
 from dcm.models.predict import trained_on  # noqa: E402
 
 TARGET_R_WITHIN = 0.85

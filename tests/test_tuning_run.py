@@ -13,7 +13,7 @@ import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from dcm.models.export import checkpoint_card
+from dcm.models.checkpoint import CARD_KEY, checkpoint_card, read_checkpoint
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
 from dcm.tuning.compare import compare
@@ -169,7 +169,7 @@ def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoin
     assert first["predictor"]["sampler"] == "ddim" and first["predictor"]["sampling_steps"] == 5  # the default
     # another checkpoint: the same model with one weight changed (as a baseline's file would differ)
     other_ckpt = tmp_path / "other.ckpt"
-    saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=False)
+    saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=True)
     name = next(k for k, v in saved["state_dict"].items() if v.is_floating_point())
     saved["state_dict"][name] = saved["state_dict"][name] + 0.01
     torch.save(saved, other_ckpt)
@@ -250,19 +250,29 @@ def test_tune_names_the_overrides_when_the_demo_is_recorded_otherwise_than_the_t
     assert "demo.duration_s=12 ++demo.lead=true" in message
     assert recording_mismatch(contact, twelve_led) is None
     assert recording_mismatch(REPO / "models/stiffness_ridge_diverse_contact.json", twelve_led) is None
-    assert "demo.duration_s=8 ++demo.lead=false" in recording_mismatch(REPO / "models/dcm_sim.ckpt", twelve_led)
-    assert recording_mismatch(REPO / "models/dcm_sim.ckpt", eight) is None
+    realistic = REPO / "models/dcm_realistic.ckpt"  # trained on 8 s demos without a leading demonstrator
+    assert "demo.duration_s=8 ++demo.lead=false" in recording_mismatch(realistic, twelve_led)
+    assert recording_mismatch(realistic, eight) is None
     assert recording_mismatch(tiny_checkpoint, eight) is None  # a training checkpoint names no preset
     assert recording_mismatch("copy_demo", eight) is None
 
 
-def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid():
-    """The *_fine predictors learned forces on a 192 x 192 bowl grid; a skill on a coarser grid shows facet
-    jumps they never saw, so tune.py names the inline bowl that gives the skill's bowl that grid."""
+def _trained_on_preset(tmp_path: Path, preset: str) -> Path:
+    """The shipped DCM with a card naming another training preset: what exporting a run on it would give."""
+    raw = read_checkpoint(REPO / "models/dcm_diverse_contact.ckpt")
+    raw[CARD_KEY]["dataset"]["dataset"] = preset
+    torch.save(raw, tmp_path / f"dcm_{preset}.ckpt")
+    return tmp_path / f"dcm_{preset}.ckpt"
+
+
+def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid(tmp_path: Path):
+    """A predictor of the *_fine presets learned forces on a 192 x 192 bowl grid; a skill on a coarser grid
+    shows facet jumps it never saw, so tune.py names the inline bowl that gives the skill's bowl that grid."""
     spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
     coarse = DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True})
     assert coarse.bowl.hfield_res != 192
-    message = recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", coarse)
+    fine_ckpt = _trained_on_preset(tmp_path, "diverse_contact_fine")
+    message = recording_mismatch(fine_ckpt, coarse)
     assert "on a 192 x 192 bowl grid" in message and f"on a {coarse.bowl.hfield_res} x" in message
     override = message.split("were: ")[1].split(" (or")[0]
     assert override.startswith("'demo.bowl={") and "hfield_res:192" in override
@@ -271,7 +281,7 @@ def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid():
                                          override.strip("'")])
     fine = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo))
     assert fine.bowl.hfield_res == 192 and fine.bowl.rim_radius_m == coarse.bowl.rim_radius_m
-    assert recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", fine) is None
+    assert recording_mismatch(fine_ckpt, fine) is None
     assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", fine) is None  # its bowls keep their own grid
 
 

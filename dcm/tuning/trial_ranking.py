@@ -119,7 +119,7 @@ def _study_config(study: Path) -> Any:
 
 def _predictor_kind(path: str) -> str:
     """The study tuner whose settings (sampler, ...) a predictor file gets: dcm, baseline or reference."""
-    from dcm.models.predict import checkpoint_kind
+    from dcm.models.checkpoint import checkpoint_kind
 
     return "reference" if path.lower().endswith(".json") else checkpoint_kind(path)
 
