@@ -1,4 +1,5 @@
-"""The runs of one study sweep (``python train.py -m +experiment=<study>``): their settings, seeds and spec.
+"""The runs of one study sweep (``python train.py -m --config-dir studies/conf +experiment=<study>``): their
+settings, seeds and spec.
 
 A run's setting is what its overrides (``.hydra/overrides.yaml``) change, except the seed; its value for a
 key is read from the resolved ``config.yaml`` (``model.diffusion_steps`` = 30) or, for a config group, from
@@ -55,7 +56,7 @@ class Run:
 
 @dataclass
 class StudySpec:
-    """What a study plots and tests (the ``study:`` block of conf/experiment/<study>.yaml)."""
+    """What a study plots and tests (the ``study:`` block of studies/conf/experiment/<study>.yaml)."""
 
     name: str
     title: str
@@ -98,7 +99,8 @@ def read_run(path: Path) -> Run:
 def find_runs(sweep_dir: Path) -> list[Run]:
     """Every run directory of a sweep (those holding ``.hydra/overrides.yaml``), finished or not."""
     if not sweep_dir.is_dir():
-        raise StudyError(f"{sweep_dir}: no such sweep directory (run `python train.py -m +experiment=<study>` first)")
+        raise StudyError(f"{sweep_dir}: no such sweep directory "
+                         "(run `python train.py -m --config-dir studies/conf +experiment=<study>` first)")
     dirs = sorted(d for d in sweep_dir.iterdir() if (d / ".hydra" / "overrides.yaml").is_file())
     if not dirs:
         raise StudyError(f"{sweep_dir}: no train.py run directory in it (none holds .hydra/overrides.yaml)")

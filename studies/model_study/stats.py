@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from dcm.tuning.study_stats import summarize
+from studies.tuning_study.study_stats import summarize
 
 ALPHA = 0.05  # significance level: p below it is printed in bold
 

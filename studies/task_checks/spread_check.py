@@ -1,7 +1,9 @@
 """Can a model of the force *distribution* rank a skill's schedules better than a model of its *mean*?
 
-    python -m dcm.spread_check --dataset sim_contact --bowl-offset-mm 0.5 2 5 --out reports/spread_check_sim_contact
-    python -m dcm.spread_check --bowl-offset-mm 0.5 --friction-std 0.3 --n-truth 16 --out reports/spread_check_n16
+    python -m studies.task_checks.spread_check --dataset sim_contact --bowl-offset-mm 0.5 2 5 \
+        --out studies/task_checks/reports/spread_check_sim_contact
+    python -m studies.task_checks.spread_check --bowl-offset-mm 0.5 --friction-std 0.3 --n-truth 16 \
+        --out studies/task_checks/reports/spread_check_n16
 
 The paper's case for a diffusion model is that contact is uncertain: the same inputs give different forces.
 This check asks, with the simulator as an oracle, how much that can be worth on the tuner's question. For
@@ -50,7 +52,7 @@ from typing import Any
 import numpy as np
 
 from dcm.control import equal_time_phases, schedule_from_phases, task_loss, task_loss_over_samples
-from dcm.data.task_check import CONF_DIR, preset_skills
+from studies.task_checks.task_check import CONF_DIR, REPORTS, preset_skills
 
 PREDICTORS = ("distribution_1", "distribution_k", "mean_force")
 TRUTHS = ("label", "expected")
@@ -143,7 +145,7 @@ def rescore(path: Path) -> dict[str, Any]:
     """Recompute the statistics of a stored ``spread_check.json`` from its rows, without a rollout."""
     out = json.loads(path.read_text())
     if "by_spread" not in out:
-        raise ValueError(f"{path}: no 'by_spread' entry; rescore reads files written since spreads were keyed")
+        raise ValueError(f"{path}: no 'by_spread' entry; rescore needs the rows keyed by spread")
     for row in out["by_spread"].values():
         row.update(summarise(row["skills"]))
     path.write_text(json.dumps(out, indent=1))
@@ -246,7 +248,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from dcm.sim.rollout import Simulator
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--dataset", default="sim_contact", help="preset in conf/dataset/")
+    parser.add_argument("--dataset", default="sim_contact", help="preset in conf/dataset/ or studies/conf/dataset/")
     parser.add_argument("--splits", nargs="+", default=["valid"])
     parser.add_argument("--max-skills", type=int, default=4, help="N skills of the chosen splits")
     parser.add_argument("--first-skill", type=int, default=0, help="skip the chosen splits' first skills")
@@ -267,7 +269,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                         help="a --predictor DCM's sampler (default: the checkpoint's own)")
     parser.add_argument("--sampling-steps", type=int, default=None, help="its DDIM steps (dividing T)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="reports/spread_check")
+    parser.add_argument("--out", default=str(REPORTS / "spread_check"))
     parser.add_argument("--rescore", metavar="JSON", help="recompute the statistics of a stored spread_check.json "
                         "from its rows (no rollouts), rewrite it and print them")
     args = parser.parse_args(argv)

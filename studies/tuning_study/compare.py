@@ -1,6 +1,6 @@
 """Compare tuning runs by hypervolume against ONE shared reference point.
 
-    python -m dcm.tuning.compare outputs/tune/<run_a> outputs/tune/<run_b> [--robot-trials 5 20 50]
+    python -m studies.tuning_study.compare outputs/tune/<run_a> outputs/tune/<run_b> [--robot-trials 5 20 50]
         [--reference-point L_TASK_N L_COMP_KNPM] [--out cmp.json]
 
 Each run's own ``results.json`` uses a reference point taken over that run alone (unless it was given
@@ -42,7 +42,7 @@ def _check_same_skill(runs: Sequence[Path]) -> None:
     skills = {run: json.loads((run / "results.json").read_text()).get("skill") for run in runs}
     unknown = [str(run) for run, skill in skills.items() if skill is None]
     if unknown:
-        print(f"warning: {', '.join(unknown)}: results.json records no skill (an older tune.py wrote it); "
+        print(f"warning: {', '.join(unknown)}: results.json records no skill; "
               "cannot check that the runs tuned the same skill", file=sys.stderr)
     known = [(run, skill) for run, skill in skills.items() if skill is not None]
     for run, skill in known[1:]:
@@ -76,8 +76,8 @@ def compare(runs: Sequence[Path], robot_trials: Sequence[int], reference: Sequen
     if robot_trials and rollouts > 1:
         raise ValueError(f"{runs[0]} judged its solutions over {rollouts} rollouts each, but its robot-based trials "
                          "are one draw each, so their prefixes would be judged on other terms; pass --robot-trials "
-                         "without values, or run python -m dcm.tuning.study validation_rollouts=R, which re-runs "
-                         "each prefix's front")
+                         "without values, or run python -m studies.tuning_study.study validation_rollouts=R, which "
+                         "re-runs each prefix's front")
     for n in robot_trials:
         if n > len(robot):
             raise ValueError(f"{robot_log} holds {len(robot)} robot-based trials; cannot report the first {n}")
@@ -86,7 +86,7 @@ def compare(runs: Sequence[Path], robot_trials: Sequence[int], reference: Sequen
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dcm.tuning.compare", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m studies.tuning_study.compare", description=__doc__.split("\n")[0])
     parser.add_argument("runs", nargs="+", type=Path, help="tune.py run directories")
     parser.add_argument("--robot-trials", nargs="*", type=int, default=[5, 20, 50])
     parser.add_argument("--reference-point", nargs=2, type=float, default=None, metavar=("L_TASK_N", "L_COMP_KNPM"),

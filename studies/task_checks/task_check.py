@@ -1,6 +1,7 @@
 """Does the simulated task reward stiffness, without controller artefacts? Measured per skill of a preset.
 
-    python -m dcm.data.task_check --dataset sim --splits valid test --out reports/task_check
+    python -m studies.task_checks.task_check --dataset sim --splits valid test \
+        --out studies/task_checks/reports/task_check_sim
 
 For every skill of the chosen splits it records the demo once and runs:
 
@@ -34,7 +35,9 @@ from dcm.control.objectives import task_loss, task_window_start
 
 SWEEP_NPM = (100.0, 150.0, 250.0, 500.0, 1000.0, 1500.0, 2500.0)
 ADDITIVITY_SCHEDULES = {"1500-150-1500": (1500.0, 150.0, 1500.0), "150-1500-150": (150.0, 1500.0, 150.0)}
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"  # the product's: generate.yaml, dataset/, stiffness/
+STUDY_CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the research dataset presets (dataset/)
+REPORTS = Path(__file__).resolve().parent / "reports"
 
 
 def squared_error(force_obs: np.ndarray, force_demo: np.ndarray) -> np.ndarray:
@@ -153,18 +156,20 @@ def plot(skills: dict[str, dict[str, Any]], path: Path) -> None:
 
 def preset_skills(dataset: str, splits: list[str], seed: int, max_skills: int | None, error: Callable[[str], Any],
                   overrides: dict[str, Any] | None = None) -> tuple[dict[str, Any], list[Any]]:
-    """The preset ``conf/dataset/<dataset>.yaml`` as generation sees it (plus ``overrides``) and the demo
-    jobs of its skills whose first trial split is in ``splits`` (the first ``max_skills``); ``error`` is
-    called with a message naming the preset when there is none."""
+    """The preset ``<dataset>.yaml`` of ``conf/dataset`` or ``studies/conf/dataset`` as generation sees it
+    (plus ``overrides``) and the demo jobs of its skills whose first trial split is in ``splits`` (the first
+    ``max_skills``); ``error`` is called with a message naming the preset when there is none."""
     from omegaconf import OmegaConf
 
     from dcm.data.generate import compose_config
     from dcm.data.presets import plan_demos
 
-    preset_file = CONF_DIR / "dataset" / f"{dataset}.yaml"
-    if not preset_file.is_file():
-        error(f"--dataset {dataset!r}: no preset file {preset_file}")
-    preset = {**OmegaConf.to_container(compose_config(dataset).dataset, resolve=True), **(overrides or {})}
+    folders = [CONF_DIR / "dataset", STUDY_CONF_DIR / "dataset"]
+    if not any((folder / f"{dataset}.yaml").is_file() for folder in folders):
+        error(f"--dataset {dataset!r}: no preset file {dataset}.yaml in {' or '.join(map(str, folders))}")
+    research = f"hydra.searchpath=['file://{STUDY_CONF_DIR}']"  # a research preset is found beside the product's
+    preset = {**OmegaConf.to_container(compose_config(dataset, [research]).dataset, resolve=True),
+              **(overrides or {})}
     jobs = [j for j in plan_demos(preset, seed) if j.trial_splits[0] in splits]
     if max_skills:
         jobs = jobs[:max_skills]
@@ -194,7 +199,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from dcm.sim.rollout import Simulator
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--dataset", default="sim", help="preset in conf/dataset/")
+    parser.add_argument("--dataset", default="sim", help="preset in conf/dataset/ or studies/conf/dataset/")
     parser.add_argument("--splits", nargs="+", default=["valid", "test"])
     parser.add_argument("--embodiment", default=None, help="default: the preset's")
     parser.add_argument("--damping", default="critical", choices=["critical", "unit"])
@@ -210,7 +215,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--task-from-s", type=float, default=0.0,
                         help="count the force error from this time [s] on (1.0: without the demos' approach)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="reports/task_check")
+    parser.add_argument("--out", default=str(REPORTS / "task_check"))
     args = parser.parse_args(argv)
 
     overrides = {"duration_s": args.duration} if args.duration is not None else {}

@@ -1,10 +1,10 @@
 """Pool tuning studies of one skill that differ only in the trained predictors: one study per training seed.
 
-    python -m dcm.tuning.study_pool seed0=outputs/study/<a> seed1=outputs/study/<b> seed2=outputs/study/<c>
+    python -m studies.tuning_study.study_pool seed0=outputs/study/<a> seed1=outputs/study/<b> seed2=outputs/study/<c>
         [--subject dcm] [--out pool.md]
 
-One study (``python -m dcm.tuning.study``) compares tuners on ONE pair of checkpoints, so a DCM ahead of the
-baseline there may be that checkpoint's luck. Whether the method is ahead needs the study repeated with
+One study (``python -m studies.tuning_study.study``) compares tuners on ONE pair of checkpoints, so a DCM ahead
+of the baseline there may be that checkpoint's luck. Whether the method is ahead needs the study repeated with
 predictors trained from other seeds. This command takes such studies, keeps the tuning seeds they share, and
 reports per training seed the median I_H of every tuner and the subject's paired test, then the subject
 against each control over all (training seed, tuning seed) pairs. That pooled test holds the trained
@@ -25,15 +25,16 @@ import math
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from dcm.tuning.study_report import label
-from dcm.tuning.study_stats import aggregate
+from studies.tuning_study.study_report import label
+from studies.tuning_study.study_stats import aggregate
 
 
 def load_study(folder: Path) -> dict:
     """A finished study's ``study.json``; a clear error when the folder holds none."""
     path = Path(folder) / "study.json"
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no study.json (is {folder} a finished `python -m dcm.tuning.study` run?)")
+        raise FileNotFoundError(f"{path}: no study.json "
+                                f"(is {folder} a finished `python -m studies.tuning_study.study` run?)")
     return json.loads(path.read_text())
 
 

@@ -1,7 +1,7 @@
 """Could a robot's F/T sensor tell a skill's schedules apart? The ranking ceiling that label noise sets.
 
-    python -m dcm.sensor_check --sets data/test_line_fine.h5:test data/diverse_contact_fine.h5:valid \
-        --task-from-s 1.0 --out reports/sensor_check/fine_wipe
+    python -m studies.task_checks.sensor_check --sets data/test_line_fine.h5:test \
+        data/diverse_contact_fine.h5:valid --task-from-s 1.0 --out studies/task_checks/reports/sensor_check/fine_wipe
 
 A dataset generated in the nominal domain holds noise-free forces. On a robot, the demo and every trial
 are read through a force/torque sensor, and this check asks what that costs the tuner's question. Each draw
@@ -155,8 +155,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
         parser.error(str(err))
     header = (f"Sensor of `{domain.name}` (force noise std {[round(v, 4) for v in domain.ft_noise_std[:3]]} N, low-pass "
               f"{domain.ft_lowpass_hz:g} Hz, tared), {args.draws} sessions, L_task from {args.task_from_s:g} s. "
-              f"Command: `python -m dcm.sensor_check "
-              f"{' '.join(argv)}`")
+              f"Command: `python -m studies.task_checks.sensor_check {' '.join(argv)}`")
     text = markdown(results, header)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,10 +1,16 @@
-"""Settings of a multi-seed study (``conf/study.yaml``): checks, the tuners it runs, and each run's tune config.
+"""Settings of a multi-seed study (``studies/conf/study.yaml``): checks, the tuners it runs, and each run's
+tune config.
 
-Every (tuner, seed) run is an ordinary :func:`dcm.tuning.run.tune` run. Its config is ``conf/tune.yaml`` as
-composed by Hydra (so settings added to the tuner later get their defaults), with the study's skill, search
-and robot-free settings, the tuner's checkpoint, the seed, the study's reference point and the tuner's own
-``tuners.<name>.overrides`` put in. Only the DCM's runs carry the robot-based search (``robot_based.n_trials``
-= the largest N): it does not depend on the predictor, so one run per seed serves every N by truncation.
+Every (tuner, seed) run is an ordinary :func:`dcm.tuning.run.tune` run. Its config is the product's
+``conf/tune.yaml`` as composed by Hydra (so settings added to the tuner later get their defaults), with the
+study's skill, search and robot-free settings, the tuner's checkpoint, the seed, the study's reference point
+and the tuner's own ``tuners.<name>.overrides`` put in. Only the DCM's runs carry the robot-based search
+(``robot_based.n_trials`` = the largest N): it does not depend on the predictor, so one run per seed serves
+every N by truncation.
+
+``study.yaml`` lives with the studies, but its groups (demo, stiffness, domain, search) and ``tune.yaml`` are
+the product's, so composing it needs both config dirs on Hydra's search path: :func:`compose_study` and
+:func:`with_product_conf` (for the command line) put the product's there.
 """
 
 from __future__ import annotations
@@ -12,10 +18,27 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+STUDY_CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # studies/conf: study.yaml
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"  # the product's conf: tune.yaml and the groups study.yaml uses
 STUDY_SETTINGS = "study_config.json"  # what a study folder was started with; a resume must match it
+
+
+def with_product_conf(argv: Sequence[str]) -> list[str]:
+    """Hydra command-line arguments with the product's conf dir added (``--config-dir``) unless one is given."""
+    argv = list(argv)
+    if any(a in ("--config-dir", "-cd") or a.startswith("--config-dir=") for a in argv):
+        return argv
+    return ["--config-dir", str(CONF_DIR), *argv]
+
+
+def compose_study(overrides: Sequence[str] = ()) -> Any:
+    """``studies/conf/study.yaml`` with ``overrides``, composed outside of a Hydra app (as tests and scripts do)."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(STUDY_CONF_DIR), version_base=None):
+        return compose("study", overrides=[f"hydra.searchpath=['file://{CONF_DIR}']", *overrides])
 
 
 class StudyConfigError(ValueError):
@@ -63,7 +86,7 @@ def tuners(cfg: Any) -> list[Tuner]:
     from omegaconf import OmegaConf
 
     if OmegaConf.is_missing(cfg, "ckpt") or not cfg.ckpt:
-        raise StudyConfigError("ckpt is required: python -m dcm.tuning.study ckpt=<dcm.ckpt>")
+        raise StudyConfigError("ckpt is required: python -m studies.tuning_study.study ckpt=<dcm.ckpt>")
     given = [("dcm", cfg.ckpt), ("baseline", cfg.baseline_ckpt), ("reference", cfg.reference_json)]
     result = []
     for name, ckpt in given:
@@ -103,7 +126,8 @@ def check_study(cfg: Any) -> None:
 
 
 def _compose_tune() -> Any:
-    """``conf/tune.yaml`` with its defaults, inside a running Hydra app or not."""
+    """The product's ``conf/tune.yaml`` with its defaults, inside a running Hydra app (whose search path holds
+    the product's conf dir) or not."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
@@ -149,7 +173,7 @@ def study_settings(cfg: Any) -> dict[str, Any]:
     settings = plain(cfg)
     for key in ("seeds", "out_dir", "hydra", "alpha", "robot_minutes_per_trial", "threads"):
         settings.pop(key, None)
-    if not settings.get("task_from_s"):  # the default: studies recorded before the setting existed still resume
+    if not settings.get("task_from_s"):  # left out at its default, so folders whose settings lack it still resume
         settings.pop("task_from_s", None)
     return json.loads(json.dumps(settings, default=str))
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from dcm.cli import load_json
 from dcm.data.datamodule import usage_index
-from dcm.model_study.runs import Run
 from dcm.models.references import STIFFNESS_RIDGE, StiffnessRegression
+from studies.model_study.runs import Run
 
 USAGE_RATE = "usage_rate"  # the setting key that turns the matched ridge on
 

@@ -1,7 +1,8 @@
 """One table for model comparisons: every model over its seeds, beside the references, on named splits.
 
-    python -m dcm.model_table --dataset data/sim.h5 --splits valid test \
-        --runs "DCM=outputs/train/dcm_s*" "baseline=outputs/train/baseline_s*" --out reports/models_sim.md
+    python -m studies.model_study.model_table --dataset data/sim.h5 --splits valid test \
+        --runs "DCM=outputs/train/dcm_s*" "baseline=outputs/train/baseline_s*" \
+        --out studies/model_study/reports/models_sim.md
 
 Each run directory's selected checkpoint (``summary.json``'s ``best_checkpoint``, else ``last.ckpt``) is scored
 by :func:`dcm.evaluate.evaluate` on each split; the result is cached next to the run
@@ -28,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from dcm.control.objectives import TASK_LOSSES
-from dcm.model_study.stats import ALPHA, p_text, welch_test
 from dcm.models.export import run_checkpoint, run_finished
 from dcm.models.metrics import REGRET_KEY, TOP_PICKS
+from studies.model_study.stats import ALPHA, p_text, welch_test
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
 COLUMNS = (("force_rmse_N", "force RMSE [N]"), ("force_rmse_ratio_copy", "÷ copy-F_demo"),
@@ -222,7 +223,7 @@ def main(argv: list[str] | None = None) -> str:
                  "in L_task by more than the predictor errs between them (`L_task sd` against `error sd`).\n\n"
                  + per_skill_table(rows, args.splits))
     header = (f"Dataset `{args.dataset}`; median [range] over seeds; checkpoints selected on val/R_within. "
-              f"Command: `python -m dcm.model_table {shlex.join(argv)}`")
+              f"Command: `python -m studies.model_study.model_table {shlex.join(argv)}`")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(header + "\n\n" + text + "\n")

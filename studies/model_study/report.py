@@ -9,9 +9,9 @@ from typing import Any
 
 import yaml
 
-from dcm.model_study.runs import reference_values
-from dcm.model_study.stats import ALPHA, p_text
 from dcm.models.references import STIFFNESS_RIDGE
+from studies.model_study.runs import reference_values
+from studies.model_study.stats import ALPHA, p_text
 
 LABELS = {"L_MSE": "L_MSE (normalised)", "force_rmse_N": "force RMSE [N]", "force_rmse_ratio_copy": "÷ copy-F_demo",
           "R_within": "R within skill", "R_within_spearman": "Spearman within", "R_pooled": "R pooled",
@@ -47,7 +47,7 @@ def markdown(study: dict[str, Any], report_command: str) -> str:
     lines = [f"# {spec['title'] or spec['name']}", "",
              f"Sweep `{study['sweep_dir']}`: {sum(c['n_seeds'] for c in study['cells'])} scored runs in "
              f"{len(study['cells'])} settings, on `{study['dataset']}`.", "",
-             f"- Runs (config: `conf/experiment/{spec['name']}.yaml`; every run's resolved config is its "
+             f"- Runs (config: `studies/conf/experiment/{spec['name']}.yaml`; every run's resolved config is its "
              "`config.yaml`), one command per setting:",
              *[f"  - {c['label'] or 'default'}: `{c['command']}`" for c in study["cells"] if c.get("command")],
              f"- Report: `{report_command}`.",

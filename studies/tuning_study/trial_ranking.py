@@ -1,12 +1,12 @@
 """How well each predictor ranks one skill's simulated trials, beside the I_H it tuned that skill to.
 
-    python -m dcm.tuning.trial_ranking STUDY LABEL=PREDICTOR ... [--tuned LABEL=STUDY:TUNER ...] [--out x.md]
+    python -m studies.tuning_study.trial_ranking STUDY LABEL=PREDICTOR ... [--tuned LABEL=STUDY:TUNER ...] [--out x.md]
 
-Why: R within over a dataset's random schedules did not say which predictor tunes a skill better (a DCM that
-ranked every held-out family better than its baseline tuned no better). A tuner's I_H is decided by the few
-schedules it validates from its predicted front. This scores predictors on the schedules a tuner meets: the
-robot-based trials of a finished study (``python -m dcm.tuning.study``; 50 MOTPE trials per tuning seed, dense
-near the front), each simulated, so their true (L_task, L_comp) are known. Per predictor:
+Why: R within over a dataset's random schedules need not say which predictor tunes a skill better, since a
+tuner's I_H is decided by the few schedules it validates from its predicted front. This scores predictors on
+the schedules a tuner meets: the robot-based trials of a finished study (``python -m
+studies.tuning_study.study``; MOTPE trials per tuning seed, dense near the front), each simulated, so their
+true (L_task, L_comp) are known. Per predictor:
 
 * ``R`` and ``rho``: Pearson and Spearman correlation of predicted and simulated L_task over the trials;
 * ``top3_regret``: what keeping its 3 best-ranked trials loses (``dcm.models.metrics.within_skill_regret``);
@@ -96,8 +96,8 @@ def study_trials(study: Path) -> tuple[np.ndarray, np.ndarray, list[int]]:
 
     logs = sorted((study / "runs" / "dcm").glob(f"seed_*/{ROBOT_LOG}"))
     if not logs:
-        raise FileNotFoundError(f"{study}: no runs/dcm/seed_*/{ROBOT_LOG} (is it a `python -m dcm.tuning.study` "
-                                "folder with its runs, not a copied report?)")
+        raise FileNotFoundError(f"{study}: no runs/dcm/seed_*/{ROBOT_LOG} (is it a `python -m "
+                                "studies.tuning_study.study` folder with its runs, not a copied report?)")
     params, objectives = zip(*(TrialLog.load(log).arrays() for log in logs))
     params, objectives = np.concatenate(params), np.concatenate(objectives)
     finite = np.isfinite(objectives).all(axis=1)
@@ -109,11 +109,11 @@ def study_trials(study: Path) -> tuple[np.ndarray, np.ndarray, list[int]]:
 def _study_config(study: Path) -> Any:
     from omegaconf import OmegaConf
 
-    from dcm.tuning.study_config import STUDY_SETTINGS
+    from studies.tuning_study.study_config import STUDY_SETTINGS
 
     path = study / STUDY_SETTINGS
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing; give the folder of a `python -m dcm.tuning.study` run")
+        raise FileNotFoundError(f"{path}: missing; give the folder of a `python -m studies.tuning_study.study` run")
     return OmegaConf.create(json.loads(path.read_text()))
 
 
@@ -131,8 +131,8 @@ def predict_trials(study: Path, predictors: Mapping[str, str], params: np.ndarra
     from dcm.cli import resolve_device
     from dcm.tuning.objectives import ModelObjective
     from dcm.tuning.run import load_predictor
-    from dcm.tuning.study_config import Tuner, tune_config
-    from dcm.tuning.study_controls import setup_skill
+    from studies.tuning_study.study_config import Tuner, tune_config
+    from studies.tuning_study.study_controls import setup_skill
 
     cfg = _study_config(study)
     reference = json.loads((study / "reference_point.json").read_text())
@@ -171,7 +171,7 @@ def _optimism(folder: Path, tuner: str, seeds: Sequence[int]) -> float:
 def tuned_summary(items: Sequence[str], seeds: Sequence[int]) -> dict[str, dict[str, float]]:
     """``LABEL=STUDY:TUNER`` -> that tuner's median I_H in that study over ``seeds`` (all must be there) and
     its optimism (:func:`_optimism`)."""
-    from dcm.tuning.study_pool import load_study, seed_values
+    from studies.tuning_study.study_pool import load_study, seed_values
 
     summary = {}
     for item in items:
@@ -215,7 +215,7 @@ def ranking_table(report: Mapping[str, Any]) -> str:
 
 
 def _parse_predictors(items: Sequence[str]) -> dict[str, str]:
-    from dcm.tuning.study_pool import parse_labelled
+    from studies.tuning_study.study_pool import parse_labelled
 
     predictors = parse_labelled(items, "predictor as LABEL=CHECKPOINT_OR_REFERENCE_JSON")
     for label, path in predictors.items():
@@ -226,7 +226,7 @@ def _parse_predictors(items: Sequence[str]) -> dict[str, str]:
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("study", type=Path, help="folder of a finished `python -m dcm.tuning.study` run")
+    parser.add_argument("study", type=Path, help="folder of a finished `python -m studies.tuning_study.study` run")
     parser.add_argument("predictors", nargs="+", help="LABEL=CHECKPOINT or LABEL=reference JSON")
     parser.add_argument("--tuned", nargs="*", default=[], help="LABEL=STUDY_FOLDER:TUNER, that predictor's tuning")
     parser.add_argument("--out", type=Path, default=None, help="write the table here (numbers beside it as .json)")
@@ -243,7 +243,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise SystemExit(f"error: {err}") from None
     reference, n_validate = np.asarray(settings["reference"]), settings["n_validate"]
     scores = {name: ranking_scores(p, objectives, reference, n_validate) for name, p in predicted.items()}
-    command = " ".join(["python -m dcm.tuning.trial_ranking", *(sys.argv[1:] if argv is None else argv)])
+    command = " ".join(["python -m studies.tuning_study.trial_ranking", *(sys.argv[1:] if argv is None else argv)])
     report = {"command": command, "study": str(args.study), "seeds": seeds, "n_trials": len(params),
               "n_validate": n_validate, "reference_point": settings["reference"], "predictors": predictors,
               "task_range": [float(objectives[:, 0].min()), float(objectives[:, 0].max())], "scores": scores,

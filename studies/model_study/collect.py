@@ -1,9 +1,9 @@
 """Score every run of a study sweep and aggregate over seeds: the numbers behind study.md/png/json.
 
 Each finished run's selected checkpoint is evaluated on the valid and test splits of its dataset with
-:func:`dcm.model_table.cached_eval` (cached as ``eval_<dataset>_<split>.json`` in the run), runs with the
-same setting (seed aside) form a cell, and the references (copy-F_demo, the stiffness ridge fitted on the
-train split) come from the same evaluations, on the same trajectories.
+:func:`studies.model_study.model_table.cached_eval` (cached as ``eval_<dataset>_<split>.json`` in the run),
+runs with the same setting (seed aside) form a cell, and the references (copy-F_demo, the stiffness ridge
+fitted on the train split) come from the same evaluations, on the same trajectories.
 """
 
 from __future__ import annotations
@@ -19,14 +19,14 @@ from typing import Any
 import yaml
 
 from dcm.cli import flatten
-from dcm.model_study.matched_ridge import USAGE_RATE, matched_ridge_runs
-from dcm.model_study.runs import (Run, StudyError, StudySpec, find_runs, init_runs, reference_values, setting_keys,
-                                  study_spec)
-from dcm.model_study.stats import describe, welch_test
-from dcm.model_table import COLUMNS, cached_eval
 from dcm.models.references import STIFFNESS_RIDGE
+from studies.model_study.matched_ridge import USAGE_RATE, matched_ridge_runs
+from studies.model_study.model_table import COLUMNS, cached_eval
+from studies.model_study.runs import (Run, StudyError, StudySpec, find_runs, init_runs, reference_values, setting_keys,
+                                      study_spec)
+from studies.model_study.stats import describe, welch_test
 
-log = logging.getLogger("dcm.model_study")
+log = logging.getLogger("studies.model_study")
 
 SPLITS = ("valid", "test")
 REFERENCES = {"copy-F_demo": "copy_demo", "stiffness-only ridge": "stiffness_ridge"}
@@ -137,6 +137,13 @@ def _multirun_overrides(sweep_dir: Path) -> tuple[list[str], list[str]]:
             [str(o) for o in overrides.get("hydra", []) if o != "hydra.mode=MULTIRUN"])
 
 
+def train_command(args: list[str]) -> str:
+    """``python train.py -m <args>``; with the studies' conf dir when an experiment is named, since the
+    experiments live there rather than in the product's conf."""
+    conf = ["--config-dir", "studies/conf"] if any(a.lstrip("+").startswith("experiment=") for a in args) else []
+    return " ".join(["python train.py -m", *conf, *(shlex.quote(a) for a in args)])
+
+
 def cell_command(cell: "Cell", sweep_dir: Path) -> str:
     """The ``train.py -m`` command that trains a cell's runs: the first run's own overrides
     (``.hydra/overrides.yaml``) with the cell's seeds, and the Hydra overrides of the sweep's launch. A study
@@ -147,11 +154,11 @@ def cell_command(cell: "Cell", sweep_dir: Path) -> str:
     own = cell.runs[0].path / ".hydra" / "overrides.yaml"
     if not own.is_file():  # an init_from checkpoint scored as it is: the sweep's launch names it
         task, hydra = _multirun_overrides(sweep_dir)
-        return "python train.py -m " + " ".join(shlex.quote(a) for a in task + hydra)
+        return train_command(task + hydra)
     task = [str(o) for o in yaml.safe_load(own.read_text()) or [] if not str(o).startswith("seed=")]
     seeds = ",".join(str(s) for s in sorted({r.seed for r in cell.runs}))
     args = task + [f"seed={seeds}"] + _multirun_overrides(sweep_dir)[1]
-    return "python train.py -m " + " ".join(shlex.quote(a) for a in args)
+    return train_command(args)
 
 
 def machine() -> str:

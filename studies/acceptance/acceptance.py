@@ -1,14 +1,14 @@
 """Acceptance of the shipped predictors on skills they never trained on, beside the references.
 
-    make acceptance                                       # generates the files below once, then runs this script
-    python bench/acceptance.py [--models models] [--datasets data/test_wavelike.h5:test ...]
+    make acceptance                                  # generates the files below once, then runs this module
+    python -m studies.acceptance.acceptance [--models models] [--datasets data/test_wavelike.h5:test ...]
 
 For each dataset split it scores every shipped force model (with its own sampler, and with DDIM-5, which is
-what tune.py uses), every shipped stiffness ridge, and copy-F_demo, and writes reports/acceptance.md. A
-predictor is scored only on files whose demos were recorded as its training demos were (duration, leading
-demonstrator, the bowl grid a preset sets for all its bowls: the preset its card names); one trained on a
-dataset without a preset in conf/dataset is scored on every file. The target is the DCM's within-skill
-R >= 0.85; the script prints whether it is met and never fails on it.
+what tune.py uses), every shipped stiffness ridge, and copy-F_demo, and writes
+studies/acceptance/reports/acceptance.md. A predictor is scored only on files whose demos were recorded as
+its training demos were (duration, leading demonstrator, the bowl grid a preset sets for all its bowls: the
+preset its card names); one trained on a dataset without a preset is scored on every file. The target is
+the DCM's within-skill R >= 0.85; the check prints whether it is met and never fails on it.
 """
 
 from __future__ import annotations
@@ -20,14 +20,14 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from dcm.data.recording import Recording, file_recording, preset_recording
+from dcm.evaluate import evaluate
+from dcm.models.export import checkpoint_card
+from dcm.models.predict import trained_on
+from studies.model_study.model_table import INTERVAL, cell, interval_cell
 
-from dcm.data.recording import Recording, file_recording, preset_recording  # noqa: E402
-from dcm.evaluate import evaluate  # noqa: E402
-from dcm.model_table import INTERVAL, cell, interval_cell  # noqa: E402
-from dcm.models.export import checkpoint_card  # noqa: E402
-from dcm.models.predict import trained_on  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
+REPORT = Path(__file__).resolve().parent / "reports" / "acceptance.md"
 
 TARGET_R_WITHIN = 0.85
 DATASETS = ("data/test_wavelike.h5:test", "data/acceptance.h5:test",  # 8 s demos (the *_sim, *_diverse files)
@@ -84,11 +84,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--models", type=Path, default=REPO / "models")
     parser.add_argument("--datasets", nargs="+", default=list(DATASETS), help="dataset:split pairs")
-    parser.add_argument("--out", type=Path, default=REPO / "reports" / "acceptance.md")
+    parser.add_argument("--out", type=Path, default=REPORT)
     args = parser.parse_args(argv)
     start = time.perf_counter()
     lines = ["# Acceptance: the shipped predictors on skills they never trained on", "",
-             f"`python bench/acceptance.py` on {platform.node() or 'this machine'} ({platform.machine()}, "
+             f"`python -m studies.acceptance.acceptance` on {platform.node() or 'this machine'} ({platform.machine()}, "
              f"{__import__('os').cpu_count()} cores). Target: the DCM's R within skill >= {TARGET_R_WITHIN}. "
              "copy-F_demo predicts L_task = 0 for every schedule: it has no ranking, only a force error."]
     verdicts = []
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         name, _, split = pair.partition(":")
         dataset = Path(name) if Path(name).is_absolute() else REPO / name
         if not dataset.is_file():
-            print(f"error: {dataset} does not exist; see this script's docstring for the command that makes it",
+            print(f"error: {dataset} does not exist; see this module's docstring for the command that makes it",
                   file=sys.stderr)
             return 1
         rows, scores = acceptance_rows(args.models, dataset, split or "test")

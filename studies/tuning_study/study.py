@@ -1,23 +1,26 @@
 """Multi-seed tuning study of one skill: every tuner and control, I_H against one fixed reference point.
 
-    python -m dcm.tuning.study ckpt=<dcm.ckpt> [baseline_ckpt=<ckpt>] [reference_json=<json>] [seeds=16] [k=v ...]
+    python -m studies.tuning_study.study ckpt=<dcm.ckpt> [baseline_ckpt=<ckpt>] [reference_json=<json>] [seeds=16]
+        [k=v ...]
 
-Why: one tuning run per method is a single draw (the tuner's README table is a tie at one seed). The study
-repeats every method over S seeds on the same skill and asks whether the DCM's hypervolume differs from each
-control's, paired by seed (Wilcoxon signed-rank). Per seed s it runs, each in its own folder
+Why: one tuning run per method is a single draw, too few to tell two tuners apart. The study repeats every
+method over S seeds on the same skill and asks whether the DCM's hypervolume differs from each control's,
+paired by seed (Wilcoxon signed-rank). Per seed s it runs, each in its own folder
 ``runs/<tuner>/seed_<s>`` of the study folder:
 
 * ``dcm`` (and ``baseline``, ``reference`` when given): robot-free tuning with :func:`dcm.tuning.run.tune`,
   ``robot_free.n_validate`` simulator validations; the DCM's run also holds the robot-based search of
   ``max(robot_based.n_trials)`` trials, reported as ``robot_based_<N>`` for each N by truncation;
-* ``prior``: the model-free control of :mod:`dcm.tuning.study_controls`;
+* ``prior``: the model-free control of :mod:`studies.tuning_study.study_controls`;
 * ``robot_based_<N>``, only with ``validation_rollouts`` > 1: the front of the first N robot-based trials,
-  re-run like a robot-free tuner's solutions (:func:`dcm.tuning.study_controls.run_robot_based_picks`); for
-  N = all trials these are the DCM run's own ``robot_based.solutions``, taken rather than rolled out again.
+  re-run like a robot-free tuner's solutions (:func:`studies.tuning_study.study_controls.run_robot_based_picks`);
+  for N = all trials these are the DCM run's own ``robot_based.solutions``, taken rather than rolled out again.
 
 A finished run (``results.json`` present) is never redone; an unfinished one resumes from its trial logs; the
-folder remembers its settings and, once a run has finished, refuses other settings. Then it writes ``study.json`` (reference point,
-I_H per tuner and seed, medians, IQRs, tests, times), ``study.md``, ``study.png`` and ``cost.md``.
+folder remembers its settings and, once a run has finished, refuses other settings. Then it writes
+``study.json`` (reference point, I_H per tuner and seed, medians, IQRs, tests, times), ``study.md``,
+``study.png`` and ``cost.md``. The settings are ``studies/conf/study.yaml``; each run's tune settings are
+composed from the product's ``conf/tune.yaml``.
 """
 
 from __future__ import annotations
@@ -32,11 +35,12 @@ import numpy as np
 
 from dcm.tuning.pareto import hypervolume
 from dcm.tuning.run import ROBOT_LOG
-from dcm.tuning.study_config import (Tuner, check_resume, check_study, plain, robot_trial_counts, seeds, tune_config,
-                                     tuners)
-from dcm.tuning.study_controls import demo_reference_point, run_prior, run_robot_based_picks, setup_skill, write_json
-from dcm.tuning.study_report import box_plot, cost_table, label, study_table
-from dcm.tuning.study_stats import aggregate, landscape
+from studies.tuning_study.study_config import (Tuner, check_resume, check_study, plain, robot_trial_counts, seeds,
+                                              tune_config, tuners)
+from studies.tuning_study.study_controls import (demo_reference_point, run_prior, run_robot_based_picks, setup_skill,
+                                                write_json)
+from studies.tuning_study.study_report import box_plot, cost_table, label, study_table
+from studies.tuning_study.study_stats import aggregate, landscape
 
 RESULTS = "results.json"
 TIMING = "timing.json"  # wall time of the invocation that finished a run (for the study's time estimate)
@@ -121,10 +125,10 @@ def _check_runs(cfg: Any, tuner_list: list[Tuner], seed: int, reference: list[fl
 
 
 def run_study(cfg: Any, out_dir: Path) -> dict[str, Any]:
-    """Run (or resume) the study of ``conf/study.yaml`` in ``out_dir``; returns what ``study.json`` holds.
+    """Run (or resume) the study of ``studies/conf/study.yaml`` in ``out_dir``; returns what ``study.json`` holds.
 
-    ``threads`` sets torch's intra-op threads for the duration (restored afterwards): on this 2-core machine
-    with other jobs running, one thread predicted a batch of 50 trajectories in 0.3 s and two in 1.3-1.8 s.
+    ``threads`` sets torch's intra-op threads for the duration (restored afterwards): the study's small batches
+    gain little from more threads and lose much when they compete for shared cores.
     """
     import torch
 
@@ -250,9 +254,11 @@ def write_outputs(cfg: Any, out_dir: Path, report: dict[str, Any], n_seeds: int)
 def _hydra_main() -> None:
     import hydra
 
-    from dcm.tuning.study_config import CONF_DIR
+    from studies.tuning_study.study_config import STUDY_CONF_DIR, with_product_conf
 
-    @hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="study")
+    sys.argv[1:] = with_product_conf(sys.argv[1:])
+
+    @hydra.main(version_base=None, config_path=str(STUDY_CONF_DIR), config_name="study")
     def main(cfg: Any) -> None:
         try:
             report = run_study(cfg, Path(cfg.out_dir))
