@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from dcm import spread_check
+from studies.task_checks import spread_check
 from dcm.sim import BowlSpec, DemoSpec, Simulator
 from dcm.sim.domain import DomainSpec, DomainSpecError
 

@@ -1,4 +1,4 @@
-"""dcm.sensor_check: the ranking ceiling that a robot's F/T sensor noise sets, on cases with known answers."""
+"""studies.task_checks.sensor_check: the ranking ceiling that a robot's F/T sensor noise sets, on cases with known answers."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dcm.control.objectives import task_loss
-from dcm.sensor_check import main, sensed_task_losses, skill_rows
+from studies.task_checks.sensor_check import main, sensed_task_losses, skill_rows
 from dcm.sim.domain import DomainSpec
 
 

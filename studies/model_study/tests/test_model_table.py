@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dcm.model_study.stats import p_text
-from dcm.model_table import REGRET_KEY, cached_eval, cell, per_skill_table, significance, table
+from studies.model_study.model_table import REGRET_KEY, cached_eval, cell, per_skill_table, significance, table
+from studies.model_study.stats import p_text
 
 
 def test_cell_median_and_range() -> None:
@@ -72,7 +72,7 @@ def test_cached_eval_reevaluates_a_checkpoint_rewritten_under_the_same_path(
 
 
 def test_runs_still_training_are_left_out_and_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from dcm.model_table import main
+    from studies.model_study.model_table import main
 
     (tmp_path / "dcm_s0" / "checkpoints").mkdir(parents=True)  # no summary.json yet: the run is not over
     with pytest.raises(SystemExit):
@@ -83,7 +83,7 @@ def test_runs_still_training_are_left_out_and_named(tmp_path: Path, capsys: pyte
 
 def test_task_from_s_reaches_evaluate_and_keeps_its_own_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import dcm.evaluate
-    from dcm.model_table import main
+    from studies.model_study.model_table import main
 
     run = tmp_path / "dcm_s0"
     (run / "checkpoints").mkdir(parents=True)

@@ -1,6 +1,7 @@
-"""Scoring predictors on a study's simulated trials (dcm.tuning.trial_ranking), on hand-made arrays and files.
+"""Scoring predictors on a study's simulated trials (studies.tuning_study.trial_ranking), on hand-made arrays
+and files.
 
-The end-to-end run on a real tiny study is in tests/test_tuning_study.py."""
+The end-to-end run on a real tiny study is in test_study.py."""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from dcm.tuning.trial_ranking import (calibration_rows, front_hv, main, ranking_scores, score_tuning_agreement,
-                                      tuned_summary)
+from studies.tuning_study.trial_ranking import (calibration_rows, front_hv, main, ranking_scores,
+                                                score_tuning_agreement, tuned_summary)
 
 REFERENCE = np.array([1.0, 3.0])
 

@@ -1,4 +1,4 @@
-"""Every study in conf/experiment/ composes for each value it sweeps, and builds the model it would train.
+"""Every study in studies/conf/experiment/ composes for each value it sweeps, and builds the model it would train.
 
 A typo in a sweep (``model.cond_encodng``, a missing net config) would otherwise surface only after the
 sweep's earlier runs had spent their hours.
@@ -6,23 +6,24 @@ sweep's earlier runs had spent their hours.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from train import new_model  # train.py is a script at the repository root
 
-from train import new_model  # noqa: E402 - train.py is a script at the repository root
-EXPERIMENTS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*.yaml"))
+REPO = Path(__file__).resolve().parents[3]
+STUDY_CONF = REPO / "studies" / "conf"
+EXPERIMENTS = sorted(p.stem for p in (STUDY_CONF / "experiment").glob("*.yaml"))
+# train.yaml is the product's; the experiments join it from the studies' conf dir, as `--config-dir` does
+SEARCH_PATH = f"hydra.searchpath=['file://{STUDY_CONF}']"
 
 
 def _sweep_overrides(name: str) -> list[str]:
     """One override per swept value, each on its own (the sweep's product is these, combined)."""
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
-        cfg = compose("train", overrides=[f"+experiment={name}"], return_hydra_config=True)
+        cfg = compose("train", overrides=[SEARCH_PATH, f"+experiment={name}"], return_hydra_config=True)
     params = cfg.hydra.sweeper.params or {}
     return [f"{key}={value}" for key, values in params.items() for value in str(values).split(",")]
 
@@ -30,9 +31,9 @@ def _sweep_overrides(name: str) -> list[str]:
 @pytest.mark.parametrize("name", EXPERIMENTS)
 def test_experiment_sweep_values_build_their_model(name: str) -> None:
     overrides = _sweep_overrides(name)
-    assert overrides, f"conf/experiment/{name}.yaml sweeps nothing"
+    assert overrides, f"studies/conf/experiment/{name}.yaml sweeps nothing"
     for override in overrides:
         with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
-            cfg = compose("train", overrides=[f"+experiment={name}", override])
+            cfg = compose("train", overrides=[SEARCH_PATH, f"+experiment={name}", override])
         assert cfg.study.name == name
         new_model(cfg)  # as train.py builds it: validates every field (unknown keys, bad values), builds the net

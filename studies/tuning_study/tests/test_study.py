@@ -9,18 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from hydra import compose, initialize_config_dir
 
 import dcm.tuning.run as tuning_run
 from dcm.models.references import main as references_main
 from dcm.tuning.pareto import hypervolume
-from dcm.tuning.study import run_study
-from dcm.tuning.study_config import StudyConfigError
-from dcm.tuning.study_controls import prior_levels
-from dcm.tuning.study_stats import aggregate, landscape, paired_test
-from dcm.tuning.trial_ranking import main as ranking_main
+from studies.tuning_study.study import run_study
+from studies.tuning_study.study_config import StudyConfigError, compose_study
+from studies.tuning_study.study_controls import prior_levels
+from studies.tuning_study.study_stats import aggregate, landscape, paired_test
+from studies.tuning_study.trial_ranking import main as ranking_main
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 
 # ------------------------------------------------------------------------------------------- statistics
@@ -65,12 +64,11 @@ def test_prior_levels_are_bin_midpoints():
 
 # ------------------------------------------------------------------------------------------- end to end
 def _study_config(ckpt: Path, reference: Path, demo: Path, out_dir: Path, *extra: str):
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
-        return compose("study", overrides=[
-            f"ckpt={ckpt}", f"reference_json={reference}", f"demo_file={demo}", "embodiment=tool", "seeds=2",
-            f"out_dir={out_dir}", "robot_free.n_trials=8", "robot_free.batch_size=4", "robot_free.n_validate=2",
-            "robot_based.n_trials=[2,6]", "search.options.n_startup_trials=4", "prior.n_levels=3", *extra,
-        ])
+    return compose_study([
+        f"ckpt={ckpt}", f"reference_json={reference}", f"demo_file={demo}", "embodiment=tool", "seeds=2",
+        f"out_dir={out_dir}", "robot_free.n_trials=8", "robot_free.batch_size=4", "robot_free.n_validate=2",
+        "robot_based.n_trials=[2,6]", "search.options.n_startup_trials=4", "prior.n_levels=3", *extra,
+    ])
 
 
 def _short_demo(tmp_path: Path) -> Path:
@@ -134,7 +132,7 @@ def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_chec
     with pytest.raises(StudyConfigError, match=r"other settings: robot_free.n_trials: 8 -> 10"):
         run_study(changed, out)
 
-    # The finished study's robot-based trials score its predictors (dcm.tuning.trial_ranking).
+    # The finished study's robot-based trials score its predictors (studies.tuning_study.trial_ranking).
     ranking_main([str(out), f"DCM={tiny_checkpoint}", f"ridge={reference}", "--tuned", f"DCM={out}:dcm",
                   f"ridge={out}:reference", "--out", str(tmp_path / "ranking.md")])
     ranking = json.loads((tmp_path / "ranking.json").read_text())
@@ -176,7 +174,7 @@ def test_robot_based_picks_take_the_tune_runs_validation_of_the_same_picks(tmp_p
     other picks or another rollout count are."""
     from types import SimpleNamespace
 
-    from dcm.tuning.study_controls import run_robot_based_picks
+    from studies.tuning_study.study_controls import run_robot_based_picks
 
     params = np.array([[[100.0] * 3], [[900.0] * 3], [[500.0] * 3]])
     observed = np.array([[0.5, 0.1], [0.2, 0.9], [0.9, 0.95]])  # the first two are the front

@@ -1,4 +1,4 @@
-"""Pooling tuning studies over training seeds (dcm.tuning.study_pool), on hand-made study.json files."""
+"""Pooling tuning studies over training seeds (studies.tuning_study.study_pool), on hand-made study.json files."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from dcm.tuning.study_pool import main, pool
+from studies.tuning_study.study_pool import main, pool
 
 REFERENCE = {"L_task_N": 0.44, "L_comp_kNpm": 2.6}
 

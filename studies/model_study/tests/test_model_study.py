@@ -3,22 +3,21 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
-from test_train_cli import REPO, TINY, _run
 
 from dcm.cli import config_diff
-from dcm.model_study.__main__ import main as study_main
-from dcm.model_study.stats import welch_test
+from studies.model_study.__main__ import main as study_main
+from studies.model_study.stats import welch_test
+from tests.test_train_cli import TINY, _run
+from train import with_added_option_defaults  # train.py is a script at the repository root
 
-sys.path.insert(0, str(REPO))
-from train import with_added_option_defaults  # noqa: E402 - train.py is a script at the repository root
-
+REPO = Path(__file__).resolve().parents[3]
+STUDY_CONF = ["--config-dir", str(REPO / "studies" / "conf")]  # the experiments, beside the product's conf
 # 2 settings x 2 seeds of the diffusion-steps study, 1 epoch each; T = 30 is the study's reference setting
-SWEEP = ["-m", "+experiment=diffusion_steps", "model.diffusion_steps=1,30", "seed=0,1"]
+SWEEP = ["-m", *STUDY_CONF, "+experiment=diffusion_steps", "model.diffusion_steps=1,30", "seed=0,1"]
 
 
 @pytest.fixture(scope="module")
@@ -111,8 +110,8 @@ def test_usage_rate_study_fits_the_ridge_on_each_runs_own_training_subset(tiny_d
                                                                            tmp_path: Path) -> None:
     from dcm.data.datamodule import DCMDataModule
 
-    _run([str(REPO / "train.py"), "-m", "+experiment=usage_rate", "model=baseline", "usage_rate=0.5,1.0", "seed=3",
-          "data=path", f"data.path={tiny_dataset_path}", *TINY, f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+    _run([str(REPO / "train.py"), "-m", *STUDY_CONF, "+experiment=usage_rate", "model=baseline", "usage_rate=0.5,1.0",
+          "seed=3", "data=path", f"data.path={tiny_dataset_path}", *TINY, f"hydra.sweep.dir={tmp_path / 'sweep'}"],
          cwd=tmp_path)
     result = json.loads(study_main([str(tmp_path / "sweep"), "--out", str(tmp_path / "report")])["json"].read_text())
     ridges = {c["values"]["usage_rate"]: c for c in result["cells"] if c["values"]["model"] == "stiffness_ridge"}
@@ -130,7 +129,7 @@ def test_usage_rate_study_fits_the_ridge_on_each_runs_own_training_subset(tiny_d
 
 def test_small_values_keep_their_digits_in_the_report() -> None:
     """A normalised L_MSE of ~1e-3 must not print as 0.001 ± 0.000 for every setting."""
-    from dcm.model_study.report import _cell_text
+    from studies.model_study.report import _cell_text
 
     small = {"n": 3, "mean": 1.234e-3, "std": 5.6e-5, "min": 1.17e-3, "max": 1.3e-3}
     assert _cell_text(small) == "1.23e-03 ± 5.60e-05 [1.17e-03–1.30e-03]"
@@ -142,7 +141,7 @@ def test_the_figure_draws_a_numeric_sweep_in_x_order(tmp_path: Path, monkeypatch
     """The compared-against setting comes first in the cells (T = 30 before T = 1); the line must not zigzag."""
     import matplotlib.axes
 
-    from dcm.model_study.report import figure
+    from studies.model_study.report import figure
 
     drawn: list[list[float]] = []
     original = matplotlib.axes.Axes.errorbar
@@ -173,8 +172,8 @@ def test_a_study_tests_along_each_of_its_comparisons_and_takes_the_newest_runs_s
 
     import yaml
 
-    from dcm.model_study.collect import compare, make_cells
-    from dcm.model_study.runs import StudyError, read_run, setting_keys, study_spec
+    from studies.model_study.collect import compare, make_cells
+    from studies.model_study.runs import StudyError, read_run, setting_keys, study_spec
 
     old = {"name": "nets", "title": "", "x": "net", "series": None, "compare": {"key": "net", "against": "retnet"}}
     new = {**old, "series": "model", "compare": [{"key": "net", "against": "retnet"},
