@@ -1,4 +1,5 @@
-"""studies.task_checks.sensor_check: the ranking ceiling that a robot's F/T sensor noise sets, on cases with known answers."""
+"""studies.task_checks.sensor_check: the ranking ceiling that a robot's F/T sensor noise sets, on cases with
+known answers."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ import numpy as np
 import pytest
 
 from dcm.control.objectives import task_loss
-from studies.task_checks.sensor_check import main, sensed_task_losses, skill_rows
 from dcm.sim.domain import DomainSpec
+from studies.task_checks.sensor_check import main, sensed_task_losses, skill_rows
 
 
 def _skill(rng: np.random.Generator, spread: float, n: int = 40, H: int = 200) -> tuple[np.ndarray, np.ndarray]:

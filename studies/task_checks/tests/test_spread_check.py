@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from studies.task_checks import spread_check
 from dcm.sim import BowlSpec, DemoSpec, Simulator
 from dcm.sim.domain import DomainSpec, DomainSpecError
+from studies.task_checks import spread_check
 
 FLAT = BowlSpec(shape="flat", rim_radius_m=0.15, depth_m=0.0, friction=0.3)
 PRESS = DemoSpec(family="line", press_m=0.01, duration_s=3.0, approach_s=1.0, bowl=FLAT,
