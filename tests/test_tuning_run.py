@@ -16,7 +16,6 @@ from omegaconf import OmegaConf
 from dcm.models.checkpoint import CARD_KEY, checkpoint_card, read_checkpoint
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
-from dcm.tuning.compare import compare
 from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
 from dcm.tuning.run import TuneConfigError, check_config, record_skill, recording_mismatch, tune, use_sampler
@@ -77,14 +76,6 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
     np.testing.assert_array_equal(extended[:16], logged)
     assert json.loads((out_dir / "results.json").read_text())["robot_free"]["n_virtual_trials"] == 24
 
-    # Comparing runs uses one reference point over all of them; a single run reproduces its own numbers.
-    report = compare([out_dir], robot_trials=[2, 5])
-    assert report["robot_free"][str(out_dir)] == pytest.approx(second["robot_free"]["hypervolume"])
-    assert report["robot_based"]["N=5"] == pytest.approx(second["robot_based"]["hypervolume"])
-    assert report["robot_based"]["N=2"] <= report["robot_based"]["N=5"]
-    with pytest.raises(ValueError, match="first 6"):
-        compare([out_dir], robot_trials=[6])
-
     # The same seed twice gives the same numbers, and the killed-and-resumed run (16, then 24 trials) gives
     # those of an uninterrupted 24-trial run: the DCM's samples are seeded per batch.
     uninterrupted = [tune(_config(tiny_checkpoint, demo, tmp_path / name, 24, *DDPM), tmp_path / name) for name in "ab"]
@@ -94,15 +85,6 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
         np.testing.assert_array_equal(TrialLog.load(tmp_path / name / "robot_free_trials.npz").arrays()[1],
                                       TrialLog.load(out_dir / "robot_free_trials.npz").arrays()[1])
     assert uninterrupted[0]["predictor"]["sampler"] == "ddpm" and uninterrupted[0]["predictor"]["T"] == 5
-
-    # Runs of another skill do not share a reference point.
-    other = tmp_path / "other"
-    other.mkdir()
-    results = json.loads((out_dir / "results.json").read_text())
-    results["skill"]["demo"]["press_m"] = 0.5
-    (other / "results.json").write_text(json.dumps(results))
-    with pytest.raises(ValueError, match="tuned another skill .*demo.press_m"):
-        compare([out_dir, other], robot_trials=[])
 
 
 def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny_checkpoint: Path, tmp_path: Path):
@@ -124,9 +106,6 @@ def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny
     assert observed == pytest.approx(simulator.rollout(recorded, stiffness).L_task)
     assert observed != pytest.approx(based["solutions"][0]["validated"]["L_task_N"])
 
-    assert compare([out_dir], robot_trials=[])["robot_free"][str(out_dir)] >= 0.0
-    with pytest.raises(ValueError, match="over 3 rollouts each, but its robot-based trials are one draw each"):
-        compare([out_dir], robot_trials=[5])
     with pytest.raises(TuneConfigError, match="validation_rollouts = 0"):
         check_config(_config(tiny_checkpoint, demo, out_dir, 8, "validation_rollouts=0"))
 
