@@ -33,7 +33,8 @@ from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
 from dcm.models.configuration import ModelInputError
-from dcm.models.dcm import DCM, ForceModel
+from dcm.models.dcm import DCM
+from dcm.models.force_model import ForceModel
 from dcm.models.metrics import REGRET_KEY, force_prediction_metrics, per_skill_ranking, ranking_metrics
 from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss, with_prior
 from dcm.models.prior_blend import PriorBlend

@@ -11,27 +11,18 @@ import pytest
 
 from dcm.data.recording import Recording, file_recording, preset_recording
 from dcm.models.configuration import CheckpointVersionWarning
-from dcm.models.export import checkpoint_card
-from dcm.models.model_card import card_markdown
+from dcm.models.checkpoint import card_markdown, checkpoint_card
 from dcm.models.predict import load_model, predict_task_loss, trained_on
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
-SHIPPED = ("dcm_sim.ckpt", "baseline_sim.ckpt", "dcm_realistic.ckpt", "stiffness_ridge_sim.json",
-           "dcm_diverse.ckpt", "baseline_diverse.ckpt", "stiffness_ridge_diverse.json",
-           "dcm_diverse_contact.ckpt", "baseline_diverse_contact.ckpt", "stiffness_ridge_diverse_contact.json",
-           "dcm_diverse_contact_wide.ckpt", "baseline_diverse_contact_wide.ckpt",
-           "stiffness_ridge_diverse_contact_wide.json",
-           "dcm_diverse_contact_slow.ckpt", "baseline_diverse_contact_slow.ckpt",
-           "stiffness_ridge_diverse_contact_slow.json",
-           "dcm_diverse_contact_fine.ckpt", "baseline_diverse_contact_fine.ckpt",
-           "stiffness_ridge_diverse_contact_fine.json")
+SHIPPED = ("dcm_diverse_contact.ckpt", "baseline_diverse_contact.ckpt", "stiffness_ridge_diverse_contact.json",
+           "dcm_realistic.ckpt")
 
 
 def test_every_documented_predictor_is_shipped_and_the_card_matches_the_files() -> None:
-    for name in SHIPPED:
-        assert (MODELS / name).is_file(), name
+    assert sorted(path.name for path in MODELS.iterdir()) == sorted([*SHIPPED, "README.md"])
     assert (MODELS / "README.md").read_text() == card_markdown(MODELS), \
-        "models/README.md is stale: python -m dcm.models.model_card models/ > models/README.md"
+        "models/README.md is stale: python -m dcm.models.checkpoint card models/"
 
 
 @pytest.mark.parametrize("name", SHIPPED)
@@ -56,13 +47,14 @@ def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_
     *_fine ones wipe every bowl on a 192 x 192 grid, the others on each bowl's own."""
     for name in SHIPPED:
         expected = Recording(12.0, True) if "_contact" in name else Recording(8.0, False)
-        expected = expected._replace(bowl_grid=192) if "_fine" in name else expected
         assert preset_recording(trained_on(MODELS / name)) == expected, name
+    assert preset_recording("diverse_contact_fine") == Recording(12.0, True, bowl_grid=192)
     assert file_recording(tiny_dataset_path) == preset_recording("tiny")
     assert preset_recording("no_such_preset") is None
 
 
-@pytest.mark.parametrize("predictors", sorted({n.split("_", 1)[1].rsplit(".", 1)[0] for n in SHIPPED if n.startswith("dcm_")}))
+@pytest.mark.parametrize("predictors", sorted({n.split("_", 1)[1].rsplit(".", 1)[0] for n in SHIPPED if n.startswith("dcm_")}
+                                              | {"diverse_contact_fine"}))  # + a preset on its own bowl grid
 def test_make_study_tuning_records_the_skill_as_the_predictors_training_demos(predictors: str) -> None:
     import shutil
     import subprocess
