@@ -18,13 +18,14 @@ from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
 from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
-from dcm.tuning.run import TuneConfigError, check_config, record_skill, recording_mismatch, tune, use_sampler
+from dcm.tuning.checks import TuneConfigError, check_config, recording_mismatch
+from dcm.tuning.run import record_skill, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int, *extra: str):
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         return compose("tune", overrides=[
             f"ckpt={ckpt}", f"demo_file={demo}", "embodiment=tool", f"out_dir={out_dir}",
             f"robot_free.n_trials={robot_free_trials}", "robot_free.batch_size=8", "robot_free.n_validate=3",
@@ -206,7 +207,7 @@ def test_tune_refuses_a_checkpoint_of_another_control_rate(tiny_checkpoint: Path
 def test_the_demo_config_tunes_a_path_family_the_shipped_dcm_never_trained_on():
     """`make demo` runs tune.py --config-name quickstart: the shipped DCM on a path family absent from the
     train/valid skills of the dataset preset its card names, recorded as that preset recorded its demos."""
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("quickstart")
         card = checkpoint_card(REPO / cfg.ckpt)
         preset = compose("generate", overrides=[f"dataset={card['dataset']['dataset']}"]).dataset
@@ -255,7 +256,7 @@ def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid(tmp
     assert "on a 192 x 192 bowl grid" in message and f"on a {coarse.bowl.hfield_res} x" in message
     override = message.split("were: ")[1].split(" (or")[0]
     assert override.startswith("'demo.bowl={") and "hfield_res:192" in override
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):  # the override, as tune.py reads it
+    with initialize_config_dir(config_dir=str(REPO / "conf")):  # the override, as tune.py reads it
         cfg = compose("tune", overrides=["demo=wavelike", "demo.duration_s=12.0", "+demo.lead=true",
                                          override.strip("'")])
     fine = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo))

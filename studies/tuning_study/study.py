@@ -115,7 +115,7 @@ def _run_robot_based_picks(cfg: Any, dcm: Tuner, seed: int, counts: list[int], o
 
 def _check_runs(cfg: Any, tuner_list: list[Tuner], seed: int, reference: list[float] | None, out_dir: Path) -> None:
     """Every tuner's tune settings, checked before the first hour of work rather than at its run."""
-    from dcm.tuning.run import check_config
+    from dcm.tuning.checks import check_config
 
     for tuner in tuner_list:
         try:

@@ -57,7 +57,8 @@ class SkillSetup:
 
 def setup_skill(tune_cfg: Any) -> SkillSetup:
     """Record the demo of ``tune_cfg`` in its simulator and build its skill (the same steps as ``tune``)."""
-    from dcm.tuning.run import check_config, record_skill
+    from dcm.tuning.checks import check_config
+    from dcm.tuning.run import record_skill
 
     checked = check_config(tune_cfg)
     simulator, demo, skill = record_skill(tune_cfg, checked)
