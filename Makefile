@@ -24,16 +24,17 @@ rollout: install
 	$(BIN)/python -m dcm.sim.render --out docs/demo_rollout.png
 
 test: install
-	$(BIN)/python -m pytest tests
+	$(BIN)/python -m pytest tests studies
 
 bench: install
 	$(BIN)/python bench/sim_throughput.py
 	$(BIN)/python bench/model_throughput.py
 
-# Shipped predictors on skills they never trained on -> reports/acceptance.md. Generates its files once
-# (about 3 min): the held-out wavelike skill and the acceptance skills, recorded as `sim`/`diverse` record
-# their demos (8 s) and as the *_contact presets do (12 s, leading demonstrator), and the held-out line; the
-# 12 s files once more on the 192 x 192 bowl grid of diverse_contact_fine, where the force has converged.
+# Shipped predictors on skills they never trained on -> studies/acceptance/reports/acceptance.md. Generates
+# its files once (about 3 min): the held-out wavelike skill and the acceptance skills, recorded as
+# `sim`/`diverse` record their demos (8 s) and as the *_contact presets do (12 s, leading demonstrator), and
+# the held-out line; the 12 s files once more on the 192 x 192 bowl grid of diverse_contact_fine, where the
+# force has converged.
 acceptance: install
 	test -f data/test_wavelike.h5 || $(BIN)/python -m dcm.data.generate dataset=sim "skills=[wavelike]" out=data/test_wavelike.h5
 	test -f data/acceptance.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance
@@ -43,13 +44,14 @@ acceptance: install
 	test -f data/test_wavelike_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact_fine "skills=[wavelike]" out=data/test_wavelike_fine.h5
 	test -f data/test_line_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact_fine "skills=[line]" out=data/test_line_fine.h5
 	test -f data/acceptance_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true +dataset.bowl.hfield_res=192 out=data/acceptance_fine.h5
-	$(BIN)/python bench/acceptance.py
+	$(BIN)/python -m studies.acceptance.acceptance
 
-# One command per model study (conf/experiment/<name>.yaml; cost in its header), e.g. `make study-realistic`:
-# a Hydra multirun into outputs/studies/<name> (re-running skips finished runs), then reports/study_<name>/.
+# One command per model study (studies/conf/experiment/<name>.yaml; cost in its header), e.g.
+# `make study-realistic`: a Hydra multirun into outputs/studies/<name> (re-running skips finished runs), then
+# studies/model_study/reports/study_<name>/.
 study-%: install
-	$(BIN)/python train.py -m +experiment=$*
-	$(BIN)/python -m dcm.model_study outputs/studies/$* --out reports/study_$*
+	$(BIN)/python train.py -m --config-dir studies/conf +experiment=$*
+	$(BIN)/python -m studies.model_study outputs/studies/$* --out studies/model_study/reports/study_$*
 
 # The tuning study (paper Figs. 10-11) with the demo's predictors (trained on `diverse_contact`): 16 seeds on
 # the wavelike skill, recorded as their training demos were (12 s, leading demonstrator). PREDICTORS=diverse:
@@ -61,5 +63,5 @@ FINE_BOWL := 'demo.bowl={hfield_res:192,name:medium_192}'
 RECORDING ?= $(if $(findstring _contact,$(PREDICTORS)),demo.duration_s=12.0 +demo.lead=true) \
 	$(if $(findstring _fine,$(PREDICTORS)),$(FINE_BOWL))
 study-tuning: install
-	$(BIN)/python -m dcm.tuning.study ckpt=models/dcm_$(PREDICTORS).ckpt baseline_ckpt=models/baseline_$(PREDICTORS).ckpt \
+	$(BIN)/python -m studies.tuning_study.study ckpt=models/dcm_$(PREDICTORS).ckpt baseline_ckpt=models/baseline_$(PREDICTORS).ckpt \
 		reference_json=models/stiffness_ridge_$(PREDICTORS).json seeds=16 $(RECORDING) hydra.run.dir=outputs/studies/tuning_$(PREDICTORS)

@@ -1,36 +1,9 @@
 """Robot-free stiffness tuning of a new skill: `python tune.py ckpt=<model.ckpt> [demo=wavelike] [k=v ...]`.
 
-See conf/tune.yaml for every option. Writes results.json, overview.png, pareto.png and solution_forces.png to
-the run directory; a killed run resumes with the same command plus `hydra.run.dir=<that run directory>`.
-A setting that cannot work stops the run with one line on stderr (`error: ...`) and exit code 1.
+The entry lives in dcm/tuning/cli.py (also the console script `dcm-tune`); conf/tune.yaml lists every option.
 """
 
-from pathlib import Path
-
-import hydra
-from omegaconf import DictConfig
-
-
-@hydra.main(version_base=None, config_path="conf", config_name="tune")
-def main(cfg: DictConfig) -> None:
-    from dcm.tuning.run import tune
-
-    try:
-        results = tune(cfg, Path(cfg.out_dir))
-    except (ValueError, OSError) as err:  # TuneConfigError, TrialLogMismatch, ModelInputError, DemoSpecError, ...
-        raise SystemExit(f"error: {' '.join(str(err).split())}") from None
-    free, robot = results["robot_free"], results["robot_based"]
-    print(f"robot-free: {free['n_virtual_trials']} virtual trials in {free['seconds']:.1f} s "
-          f"(model {free['seconds_model']:.1f} s, optimiser {free['seconds_optimiser']:.1f} s), "
-          f"{free['n_validated']} solutions validated, hypervolume {free['hypervolume']:.4g}")
-    if robot["hypervolume"] is not None:
-        print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s, "
-              f"hypervolume {robot['hypervolume']:.4g}")
-    out = Path(cfg.out_dir)
-    print(f"results: {out / 'results.json'}")
-    print("figures: " + ", ".join(str(out / name) for name in ("overview.png", "pareto.png", "solution_forces.png")
-                                  if (out / name).is_file()))
-
+from dcm.tuning.cli import main
 
 if __name__ == "__main__":
     main()

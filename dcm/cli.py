@@ -3,18 +3,25 @@
 * :func:`resolve_device` turns a ``device=`` setting into a ``torch.device`` and refuses a device this machine
   does not have (instead of a CUDA traceback deep inside the first forward pass);
 * :func:`load_json` reads a JSON file and reports a syntax error as ``file, line L, column C: ...``;
-* :func:`config_diff` lists the settings that differ between two configurations, e.g. ``seed: 0 -> 3``.
+* :func:`config_diff` lists the settings that differ between two configurations, e.g. ``seed: 0 -> 3``;
+* :func:`quiet_libraries` keeps library chatter out of an entry point's output.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the Hydra configs of the entry points
 DEVICE_CHOICES = "auto, cpu, cuda, cuda:<index> or mps"
+# Loggers that report at INFO what no user acts on: PyOpenGL runs without its optional accelerator module,
+# matplotlib rebuilt its font cache. Their warnings still show.
+QUIET_LOGGERS = ("OpenGL.acceleratesupport", "matplotlib.font_manager")
 
 
 class DeviceError(ValueError):
@@ -29,7 +36,7 @@ def resolve_device(name: str, option: str = "device") -> "Any":
     """The ``torch.device`` for a setting (``auto``: cuda, else mps, else cpu).
 
     ``option`` is the setting's name as the user types it (``device``, ``trainer.accelerator`` ...) and appears
-    in the error, e.g. ``device=cuda: CUDA is not available on this machine (torch 2.13.0+cpu); use device=cpu
+    in the error, e.g. ``device=cuda: CUDA is not available on this machine (torch <version>+cpu); use device=cpu
     or device=auto``.
     """
     import torch
@@ -139,3 +146,15 @@ def check_number(value: Any, key: str, error: type[Exception] = ValueError) -> f
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise error(f"{key} = {value!r} must be a finite number")
     return float(value)
+
+
+def quiet_libraries() -> None:
+    """Hush :data:`QUIET_LOGGERS` and send log lines to stderr, so stdout carries only an entry point's results.
+
+    Call it first in a Hydra main: Hydra's console log shows INFO, on stdout.
+    """
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
+    for handler in logging.getLogger().handlers:
+        if type(handler) is logging.StreamHandler and handler.stream is sys.stdout:
+            handler.setStream(sys.stderr)

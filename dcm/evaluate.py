@@ -11,7 +11,7 @@ skill's trials share (``force_rmse_skill_common_N``, the same for copy-F_demo); 
 them (model kind, T, sampler, samples, seed). ``per_skill`` lists, for every skill, how far its
 schedules' L_task differ, how far the predictor errs between them and how well it ranks them
 (:func:`dcm.models.metrics.per_skill_ranking`). A learned model is reported beside two references under
-``references``: ``copy_demo`` and ``stiffness_ridge`` (fitted on the same file's train split in seconds, or
+``references``: ``copy_demo`` and ``stiffness_ridge`` (fitted on the same file's train split, or
 loaded from ``reference=<json>``), so every comparison shows them. Skills are the trajectories' ``demo_id``.
 The dataset must have the model's channels and control rate; it need not be one the model saw.
 """
@@ -33,7 +33,8 @@ from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
 from dcm.models.configuration import ModelInputError
-from dcm.models.dcm import DCM, ForceModel
+from dcm.models.dcm import DCM
+from dcm.models.force_model import ForceModel
 from dcm.models.metrics import REGRET_KEY, force_prediction_metrics, per_skill_ranking, ranking_metrics
 from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss, with_prior
 from dcm.models.prior_blend import PriorBlend

@@ -12,9 +12,9 @@ import torch
 
 from dcm import __version__
 from dcm.models.configuration import CheckpointIncompatibleError, CheckpointVersionWarning
-from dcm.models.dcm import VERSION_KEY
+from dcm.models.checkpoint import VERSION_KEY, checkpoint_card
 from dcm.models.predict import load_model
-from dcm.training.export import checkpoint_card, export_checkpoint, main
+from dcm.training.export import main
 
 
 def _inputs(seed: int = 0, horizon: int = 16) -> tuple[np.ndarray, ...]:
@@ -40,10 +40,11 @@ def run_dir(tiny_checkpoint: Path, tiny_dataset_path: Path, tmp_path: Path) -> P
 
 
 def test_export_is_slim_predicts_the_same_and_carries_its_card(run_dir: Path, tmp_path: Path) -> None:
-    out = export_checkpoint(run_dir, tmp_path / "shipped" / "dcm.ckpt", {"name": "dcm_tiny"})
+    out = tmp_path / "shipped" / "dcm.ckpt"
+    assert main([str(run_dir), str(out), "--name", "dcm_tiny"]) == 0
     source = run_dir / "checkpoints" / "epoch000.ckpt"
     assert out.stat().st_size < source.stat().st_size
-    raw = torch.load(out, weights_only=False)
+    raw = torch.load(out, weights_only=True)
     assert "optimizer_states" not in raw and raw[VERSION_KEY] == __version__
 
     inputs = _inputs()
@@ -59,7 +60,7 @@ def test_export_is_slim_predicts_the_same_and_carries_its_card(run_dir: Path, tm
 
 
 def test_another_code_version_warns_naming_both(tiny_checkpoint: Path, tmp_path: Path) -> None:
-    raw = torch.load(tiny_checkpoint, weights_only=False)
+    raw = torch.load(tiny_checkpoint, weights_only=True)
     raw[VERSION_KEY] = "0.0.1"
     old = tmp_path / "old.ckpt"
     torch.save(raw, old)
@@ -71,7 +72,7 @@ def test_another_code_version_warns_naming_both(tiny_checkpoint: Path, tmp_path:
 
 
 def test_renamed_parameters_fail_with_a_clear_error(tiny_checkpoint: Path, tmp_path: Path) -> None:
-    raw = torch.load(tiny_checkpoint, weights_only=False)
+    raw = torch.load(tiny_checkpoint, weights_only=True)
     state = raw["state_dict"]
     name = next(iter(state))
     state["old_" + name] = state.pop(name)

@@ -91,6 +91,17 @@ def test_settings_are_checked_before_any_work(tmp_path: Path, overrides: list[st
     assert list(tmp_path.iterdir()) == []  # neither the file nor a part folder
 
 
+def test_a_run_prints_its_result_on_stdout_and_nothing_else(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONWARNINGS"}
+    out = tmp_path / "d.h5"
+    proc = subprocess.run([sys.executable, "-m", "dcm.data.generate", "dataset=tiny", f"hydra.run.dir={tmp_path / 'h'}",
+                           f"out={out}", *SMALL], cwd=REPO, env={**env, "MUJOCO_GL": "egl"}, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stderr == ""  # no library or deprecation chatter
+    assert len(proc.stdout.splitlines()) == 1 and proc.stdout.startswith(f"wrote {out}: 2 trajectories")
+
+
 def test_bad_waypoint_file_fails_in_one_line_and_leaves_nothing(tmp_path: Path) -> None:
     csv = tmp_path / "path.csv"
     csv.write_text("t,x,y,press\n0,0,0,0.01\n1,0.01,0,abc\n")
@@ -101,12 +112,12 @@ def test_bad_waypoint_file_fails_in_one_line_and_leaves_nothing(tmp_path: Path) 
 
 
 def test_a_failed_run_leaves_no_empty_part_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from dcm.data import generate as generate_module
+    from dcm.data import generate_workers
 
     def broken(self, job, job_fingerprint, on_trial=lambda: None):
         raise RuntimeError("simulator exploded")
 
-    monkeypatch.setattr(generate_module.DemoRunner, "run", broken)
+    monkeypatch.setattr(generate_workers.DemoRunner, "run", broken)
     with pytest.raises(GenerationError, match="simulator exploded"):
         generate(compose_config("tiny", [f"out={tmp_path / 'x.h5'}", *SMALL]))
     assert list(tmp_path.iterdir()) == []

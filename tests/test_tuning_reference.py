@@ -44,7 +44,7 @@ def test_tune_py_runs_robot_free_on_the_stiffness_reference(tiny_dataset_path: P
 
 
 def test_tune_refuses_copy_demo(tmp_path: Path) -> None:
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("tune", overrides=["ckpt=copy_demo", f"demo_file={_short_demo(tmp_path)}",
                                          f"out_dir={tmp_path}", *SMALL])
     with pytest.raises(ValueError, match="ckpt=copy_demo cannot tune: .* cannot rank them"):
@@ -53,7 +53,7 @@ def test_tune_refuses_copy_demo(tmp_path: Path) -> None:
 
 def test_tune_refuses_a_reference_of_another_phase_count(tiny_dataset_path: Path, tmp_path: Path) -> None:
     ref = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("tune", overrides=[f"ckpt={ref}", f"demo_file={_short_demo(tmp_path)}", f"out_dir={tmp_path}",
                                          "stiffness.n_phases=2", *SMALL])
     with pytest.raises(ValueError, match="schedules have 2 phases, but .* fitted on 3-phase schedules"):

@@ -13,19 +13,19 @@ import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from dcm.models.export import checkpoint_card
+from dcm.models.checkpoint import CARD_KEY, checkpoint_card, read_checkpoint
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
-from dcm.tuning.compare import compare
 from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
-from dcm.tuning.run import TuneConfigError, check_config, record_skill, recording_mismatch, tune, use_sampler
+from dcm.tuning.checks import TuneConfigError, check_config, recording_mismatch
+from dcm.tuning.run import record_skill, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int, *extra: str):
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         return compose("tune", overrides=[
             f"ckpt={ckpt}", f"demo_file={demo}", "embodiment=tool", f"out_dir={out_dir}",
             f"robot_free.n_trials={robot_free_trials}", "robot_free.batch_size=8", "robot_free.n_validate=3",
@@ -77,14 +77,6 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
     np.testing.assert_array_equal(extended[:16], logged)
     assert json.loads((out_dir / "results.json").read_text())["robot_free"]["n_virtual_trials"] == 24
 
-    # Comparing runs uses one reference point over all of them; a single run reproduces its own numbers.
-    report = compare([out_dir], robot_trials=[2, 5])
-    assert report["robot_free"][str(out_dir)] == pytest.approx(second["robot_free"]["hypervolume"])
-    assert report["robot_based"]["N=5"] == pytest.approx(second["robot_based"]["hypervolume"])
-    assert report["robot_based"]["N=2"] <= report["robot_based"]["N=5"]
-    with pytest.raises(ValueError, match="first 6"):
-        compare([out_dir], robot_trials=[6])
-
     # The same seed twice gives the same numbers, and the killed-and-resumed run (16, then 24 trials) gives
     # those of an uninterrupted 24-trial run: the DCM's samples are seeded per batch.
     uninterrupted = [tune(_config(tiny_checkpoint, demo, tmp_path / name, 24, *DDPM), tmp_path / name) for name in "ab"]
@@ -94,15 +86,6 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
         np.testing.assert_array_equal(TrialLog.load(tmp_path / name / "robot_free_trials.npz").arrays()[1],
                                       TrialLog.load(out_dir / "robot_free_trials.npz").arrays()[1])
     assert uninterrupted[0]["predictor"]["sampler"] == "ddpm" and uninterrupted[0]["predictor"]["T"] == 5
-
-    # Runs of another skill do not share a reference point.
-    other = tmp_path / "other"
-    other.mkdir()
-    results = json.loads((out_dir / "results.json").read_text())
-    results["skill"]["demo"]["press_m"] = 0.5
-    (other / "results.json").write_text(json.dumps(results))
-    with pytest.raises(ValueError, match="tuned another skill .*demo.press_m"):
-        compare([out_dir, other], robot_trials=[])
 
 
 def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny_checkpoint: Path, tmp_path: Path):
@@ -124,9 +107,6 @@ def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny
     assert observed == pytest.approx(simulator.rollout(recorded, stiffness).L_task)
     assert observed != pytest.approx(based["solutions"][0]["validated"]["L_task_N"])
 
-    assert compare([out_dir], robot_trials=[])["robot_free"][str(out_dir)] >= 0.0
-    with pytest.raises(ValueError, match="over 3 rollouts each, but its robot-based trials are one draw each"):
-        compare([out_dir], robot_trials=[5])
     with pytest.raises(TuneConfigError, match="validation_rollouts = 0"):
         check_config(_config(tiny_checkpoint, demo, out_dir, 8, "validation_rollouts=0"))
 
@@ -169,7 +149,7 @@ def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoin
     assert first["predictor"]["sampler"] == "ddim" and first["predictor"]["sampling_steps"] == 5  # the default
     # another checkpoint: the same model with one weight changed (as a baseline's file would differ)
     other_ckpt = tmp_path / "other.ckpt"
-    saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=False)
+    saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=True)
     name = next(k for k, v in saved["state_dict"].items() if v.is_floating_point())
     saved["state_dict"][name] = saved["state_dict"][name] + 0.01
     torch.save(saved, other_ckpt)
@@ -227,7 +207,7 @@ def test_tune_refuses_a_checkpoint_of_another_control_rate(tiny_checkpoint: Path
 def test_the_demo_config_tunes_a_path_family_the_shipped_dcm_never_trained_on():
     """`make demo` runs tune.py --config-name quickstart: the shipped DCM on a path family absent from the
     train/valid skills of the dataset preset its card names, recorded as that preset recorded its demos."""
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("quickstart")
         card = checkpoint_card(REPO / cfg.ckpt)
         preset = compose("generate", overrides=[f"dataset={card['dataset']['dataset']}"]).dataset
@@ -250,28 +230,48 @@ def test_tune_names_the_overrides_when_the_demo_is_recorded_otherwise_than_the_t
     assert "demo.duration_s=12 ++demo.lead=true" in message
     assert recording_mismatch(contact, twelve_led) is None
     assert recording_mismatch(REPO / "models/stiffness_ridge_diverse_contact.json", twelve_led) is None
-    assert "demo.duration_s=8 ++demo.lead=false" in recording_mismatch(REPO / "models/dcm_sim.ckpt", twelve_led)
-    assert recording_mismatch(REPO / "models/dcm_sim.ckpt", eight) is None
+    realistic = REPO / "models/dcm_realistic.ckpt"  # trained on 8 s demos without a leading demonstrator
+    assert "demo.duration_s=8 ++demo.lead=false" in recording_mismatch(realistic, twelve_led)
+    assert recording_mismatch(realistic, eight) is None
     assert recording_mismatch(tiny_checkpoint, eight) is None  # a training checkpoint names no preset
     assert recording_mismatch("copy_demo", eight) is None
 
 
-def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid():
-    """The *_fine predictors learned forces on a 192 x 192 bowl grid; a skill on a coarser grid shows facet
-    jumps they never saw, so tune.py names the inline bowl that gives the skill's bowl that grid."""
+def _trained_on_preset(tmp_path: Path, preset: str) -> Path:
+    """The shipped DCM with a card naming another training preset: what exporting a run on it would give."""
+    raw = read_checkpoint(REPO / "models/dcm_diverse_contact.ckpt")
+    raw[CARD_KEY]["dataset"]["dataset"] = preset
+    torch.save(raw, tmp_path / f"dcm_{preset}.ckpt")
+    return tmp_path / f"dcm_{preset}.ckpt"
+
+
+def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch):
+    """A predictor of the *_fine presets learned forces on a 192 x 192 bowl grid; a skill on a coarser grid
+    shows facet jumps it never saw, so tune.py names the inline bowl that gives the skill's bowl that grid."""
+    import dcm.data.recording as rec
+    from dcm.data.generate import compose_config
+
+    # diverse_contact_fine is a research preset (studies/conf/dataset): its recording, as composed there
+    research = f"hydra.searchpath=[file://{REPO / 'studies' / 'conf'}]"
+    fine_recording = rec.recording(compose_config("diverse_contact_fine", [research]).dataset)
+    product = rec.preset_recording
+    monkeypatch.setattr(rec, "preset_recording",
+                        lambda name: fine_recording if name == "diverse_contact_fine" else product(name))
     spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
     coarse = DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True})
     assert coarse.bowl.hfield_res != 192
-    message = recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", coarse)
+    fine_ckpt = _trained_on_preset(tmp_path, "diverse_contact_fine")
+    message = recording_mismatch(fine_ckpt, coarse)
     assert "on a 192 x 192 bowl grid" in message and f"on a {coarse.bowl.hfield_res} x" in message
     override = message.split("were: ")[1].split(" (or")[0]
     assert override.startswith("'demo.bowl={") and "hfield_res:192" in override
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):  # the override, as tune.py reads it
+    with initialize_config_dir(config_dir=str(REPO / "conf")):  # the override, as tune.py reads it
         cfg = compose("tune", overrides=["demo=wavelike", "demo.duration_s=12.0", "+demo.lead=true",
                                          override.strip("'")])
     fine = DemoSpec.from_dict(OmegaConf.to_container(cfg.demo))
     assert fine.bowl.hfield_res == 192 and fine.bowl.rim_radius_m == coarse.bowl.rim_radius_m
-    assert recording_mismatch(REPO / "models/dcm_diverse_contact_fine.ckpt", fine) is None
+    assert recording_mismatch(fine_ckpt, fine) is None
     assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", fine) is None  # its bowls keep their own grid
 
 

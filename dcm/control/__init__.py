@@ -6,8 +6,8 @@ Frames and units, defined once for the whole project:
 * **Pose** ``x`` (6,): tool-tip position [m] in the bowl frame, then the tool orientation as a rotation
   vector [rad] relative to the nominal "tool pointing straight down" orientation, in bowl-frame axes.
 * **Stiffness** ``K`` (6,): the diagonal of the Cartesian stiffness in bowl-frame axes,
-  ``[Kx, Ky, Kz]`` in N/m and ``[Krx, Kry, Krz]`` in N·m/rad. Damping is ``D = 2·sqrt(m K)``: ``m = 1`` (the paper's) or the
-  embodiment's apparent Cartesian mass (critical damping for the arm; the default).
+  ``[Kx, Ky, Kz]`` in N/m and ``[Krx, Kry, Krz]`` in N·m/rad. Damping is ``D = 2·sqrt(m K)``: ``m = 1`` (the
+  paper's) or the embodiment's apparent Cartesian mass (critical damping for the arm; the default).
 * **Wrench** ``F`` (6,): the contact wrench the environment exerts *on* the tool, force [N] in bowl-frame
   axes and torque [N·m] about the tool-tip centre, tool weight removed. Pressing down gives ``F_z > 0``.
 

@@ -16,7 +16,7 @@ def damping_from_stiffness(stiffness: np.ndarray, mass: float | np.ndarray = 1.0
     """Critical damping ``D = 2 sqrt(m K)`` for a mass ``m`` per axis (elementwise on the diagonal).
 
     ``mass = 1`` is the paper's (and franka_ros') ``D = 2 sqrt(K)``, critical only for unit inertia; a Panda
-    tip feels 8-13 kg, where that gives a damping ratio near 0.3 and the arm rings after every change.
+    tip feels several kilograms, so that damping leaves the arm under-damped and it rings after every change.
     Passing the embodiment's apparent Cartesian mass makes the damping critical for the arm itself.
     """
     return 2.0 * np.sqrt(np.asarray(mass, dtype=np.float64) * np.asarray(stiffness, dtype=np.float64))
@@ -97,8 +97,8 @@ class StiffnessLimits:
 class StiffnessFilter:
     """First-order low-pass on stiffness changes, optionally rate limited, as franka_ros controllers do.
 
-    Abrupt stiffness drops (say 1500 -> 200 N/m) make a pressing tool lift off and bounce; filtering them
-    with a time constant of about 0.2 s keeps the contact smooth.
+    Abrupt stiffness drops make a pressing tool lift off and bounce; filtering them with a time constant of a
+    few control periods keeps the contact smooth.
     """
 
     def __init__(self, tau_s: float = 0.2, dt: float = 0.05, max_rate: float | None = None):

@@ -23,11 +23,11 @@ def task_loss(force_obs: Any, force_demo: Any, from_step: int = 0) -> Any:
 def task_window_start(task_from_s: float, control_hz: float, horizon: int) -> int:
     """The first control step that L_task counts when scoring from ``task_from_s`` seconds on.
 
-    Every demo starts with an approach (``DemoSpec.approach_s``, 1 s by default): the tool descends onto the
-    bowl and F_demo jumps from 0 to the press force within a step or two. A rollout that touches down a step
-    earlier or later, or overshoots on impact, errs by several newtons there, and those few steps can hold
-    most of a 12 s trajectory's squared error. Scoring from the approach's end ranks schedules by how they
-    track the force while wiping. Raises ValueError naming ``task_from_s`` unless 0 <= it < the horizon.
+    Every demo starts with an approach (``DemoSpec.approach_s``): the tool descends onto the bowl and F_demo
+    jumps from 0 to the press force within a step or two. A rollout that touches down a step earlier or later,
+    or overshoots on impact, errs by newtons there, and those few steps can hold most of a trajectory's
+    squared error. Scoring from the approach's end ranks schedules by how they track the force while wiping.
+    Raises ValueError naming ``task_from_s`` unless 0 <= it < the horizon.
     """
     seconds = float(task_from_s)
     start = int(round(seconds * float(control_hz))) if math.isfinite(seconds) else -1

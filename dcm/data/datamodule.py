@@ -1,4 +1,4 @@
-"""Lightning DataModule over a dcm HDF5 dataset, held entirely in memory (datasets are a few MB).
+"""Lightning DataModule over a dcm HDF5 dataset, held entirely in memory (datasets are small).
 
 Batches are dicts of raw, un-normalised float32 tensors in physical units:
 
@@ -94,10 +94,10 @@ class SkillGroupBatchSampler(Sampler[list[int]]):
     """Training batches made of whole groups: ``group_size`` trials of one skill each.
 
     A loss that compares one skill's trials (the model's ``task_weight``) needs several of them in a batch;
-    a plain shuffle of 312 skills x 20 trials puts two of one skill in a batch of 32 about once. Every epoch
-    shuffles each skill's trials, cuts them into groups (a skill's last group may be smaller; a trial without
-    a skill, -1, is a group of its own), shuffles the groups and deals ``batch_size // group_size`` of them
-    per batch. Every trial is seen once per epoch; the draws come from ``generator``.
+    a plain shuffle of many skills seldom puts two of one skill in a batch. Every epoch shuffles each skill's
+    trials, cuts them into groups (a skill's last group may be smaller; a trial without a skill, -1, is a group
+    of its own), shuffles the groups and deals ``batch_size // group_size`` of them per batch. Every trial is
+    seen once per epoch; the draws come from ``generator``.
     """
 
     def __init__(self, skills: torch.Tensor, batch_size: int, group_size: int, generator: torch.Generator) -> None:
@@ -269,5 +269,5 @@ class DCMDataModule(L.LightningDataModule):
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         """Restore the shuffle stream; the subset itself is a pure function of (file, usage_rate, seed)."""
-        if "shuffle_rng" in state_dict:  # absent in checkpoints written before it was saved
+        if "shuffle_rng" in state_dict:  # a checkpoint may not hold it
             self.shuffle_generator.set_state(state_dict["shuffle_rng"])

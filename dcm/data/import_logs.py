@@ -146,7 +146,8 @@ def lowpass(t: np.ndarray, values: np.ndarray, cutoff_hz: float, order: int) -> 
     if cutoff_hz <= 0:
         return grid, uniform
     if cutoff_hz >= 0.5 * rate_hz:
-        raise LogFormatError(f"low-pass cut-off {cutoff_hz} Hz is not below the stream's Nyquist rate {rate_hz / 2:.1f} Hz")
+        raise LogFormatError(f"low-pass cut-off {cutoff_hz} Hz is not below the stream's Nyquist rate "
+                             f"{rate_hz / 2:.1f} Hz")
     sos = butter(order, cutoff_hz, fs=rate_hz, output="sos")
     return grid, sosfiltfilt(sos, uniform, axis=0)
 

@@ -43,7 +43,7 @@ def force_step_change(wrench: np.ndarray) -> float:
     """Median over trajectories of the mean step-to-step change of the force vector (N, H, 6) -> N.
 
     A rough surface shows here: on a coarse bowl grid the tool crosses facet edges and the force jumps from step
-    to step (docs/results.md, "The bowl's heightfield grid")."""
+    to step (studies/record.md, "The bowl's heightfield grid")."""
     steps = np.linalg.norm(np.diff(wrench[..., :3], axis=1), axis=-1)
     return float(np.median(steps.mean(axis=1)))
 
@@ -55,7 +55,7 @@ def approach_share(F_obs: np.ndarray, F_demo: np.ndarray, approach_steps: np.nda
     Returns the median over trajectories of the share of the squared force error in each one's first
     ``approach_steps`` steps, and the median over demos (of >= 3 trials) of the within-demo Spearman between
     L_task and L_task after the approach: near 1, the approach does not change the ranking; near 0, the
-    ranking is the touch-down's (docs/results.md, "The touch-down").
+    ranking is the touch-down's (studies/record.md, "The touch-down").
     """
     from scipy.stats import spearmanr
 

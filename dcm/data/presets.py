@@ -130,7 +130,8 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
         defaults["hover_m"] = float(hover)
     groups: list[tuple[str, str, int, list[dict[str, Any]]]] = []
     if waypoints is not None and waypoints.get("waypoints"):
-        spec = {"family": "waypoints", "waypoints": str(Path(str(waypoints["waypoints"])).expanduser().resolve()), "bowl": dict(waypoints["bowl"])}
+        path = Path(str(waypoints["waypoints"])).expanduser().resolve()
+        spec = {"family": "waypoints", "waypoints": str(path), "bowl": dict(waypoints["bowl"])}
         n = int(n_trials_override or waypoints.get("n_trials", 20))
         groups.append(("waypoints", str(waypoints.get("split", "train")), n, [spec]))
     else:

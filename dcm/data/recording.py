@@ -1,9 +1,9 @@
 """How a dataset's demos were recorded: their duration, whether the demonstrator led the tool, and the bowl grid.
 
 A predictor meets a new skill's demo through F_demo and x_demo, so it should see that demo recorded as its
-training demos were: ``tune.py`` warns and ``bench/acceptance.py`` pairs files on this. The bowl grid is part
-of it because MuJoCo wipes a heightfield of flat facets: on a coarse grid a fast stroke's force jumps at the
-facet edges, which a predictor trained on a converged grid never saw (docs/results.md, "The bowl's heightfield
+training demos were: ``tune.py`` warns and the acceptance study pairs files on this. The bowl grid is part of
+it because MuJoCo wipes a heightfield of flat facets: on a coarse grid a fast stroke's force jumps at the facet
+edges, which a predictor trained on a converged grid never saw (studies/record.md, "The bowl's heightfield
 grid").
 """
 
@@ -16,8 +16,8 @@ from typing import Any, Mapping, NamedTuple
 class Recording(NamedTuple):
     duration_s: float
     lead: bool
-    bowl_grid: int | None = None  # the preset's bowl.hfield_res; None: each bowl keeps its own (80-112)
-    hover_m: float | None = None  # the preset's demo_hover_m; None: DemoSpec's default (0.01 m)
+    bowl_grid: int | None = None  # the preset's bowl.hfield_res; None: each bowl keeps its own
+    hover_m: float | None = None  # the preset's demo_hover_m; None: DemoSpec's default
 
     def describe(self) -> str:
         grid = "" if self.bowl_grid is None else f" on a {self.bowl_grid} x {self.bowl_grid} bowl grid"

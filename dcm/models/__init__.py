@@ -9,8 +9,6 @@ from dcm.models.nets import SCORE_NETS, build_score_net
 
 __all__ = ["SCORE_NETS", "build_score_net"]
 
-# --- LightningModule exports (DCM, Baseline) go below this line ---
-
 
 def __getattr__(name: str):
     """Lazy access to the LightningModules (`from dcm.models import DCM`) without importing Lightning eagerly."""

@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from dcm.models.configuration import BaselineConfig
-from dcm.models.dcm import OUT_DIM, ForceModel
+from dcm.models.force_model import OUT_DIM, ForceModel
 
 
 class Baseline(ForceModel):

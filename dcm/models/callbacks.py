@@ -4,7 +4,7 @@
   to F_demo, :func:`dcm.control.objectives.task_loss`, in N) computed within each skill (demo) and averaged
   over skills, with ``R_within_n_skills`` the skills used — the tuner ranks one skill's schedules, so this is
   what checkpoints are selected on (``checkpoint.monitor`` in conf/train.yaml). See :mod:`dcm.models.metrics`.
-* ``R_pooled`` (and ``R``, the same number under its old name): Pearson correlation over all trajectories.
+* ``R_pooled`` (also logged as ``R``): Pearson correlation over all trajectories.
 * ``L_task_mae_N``: mean absolute error of predicted L_task.
 * ``top3_regret``: what a tuner keeping each skill's 3 best-ranked schedules loses (0: the truly best,
   1: a random pick; :func:`dcm.models.metrics.within_skill_regret`).

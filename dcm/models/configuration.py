@@ -36,6 +36,10 @@ class CheckpointIncompatibleError(ModelInputError):
     """A checkpoint's parameter names do not fit this code (written by another dcm version)."""
 
 
+class CheckpointUnsafeError(ModelInputError):
+    """A file that holds more than plain data: reading it would run code, so it is not read."""
+
+
 class CheckpointVersionWarning(UserWarning):
     """A checkpoint was written by another dcm version: it loads, but its behaviour may differ."""
 
@@ -143,8 +147,8 @@ class DCMConfig(ForceModelConfig):
     """The diffusion contact model: DDPM over the normalised force trajectory."""
 
     diffusion_steps: int = 30  # T, 1..100
-    # what the net outputs and the loss compares: sample (x0, the default: ε-prediction divides the net's
-    # error by sqrt(alpha_bar) ~ 0.03 in the first steps and ranked trials far worse), epsilon, v_prediction
+    # what the net outputs and the loss compares: sample (x0, the default: the x0 estimate of ε-prediction
+    # divides the net's error by sqrt(alpha_bar), which is small near pure noise), epsilon, v_prediction
     prediction_type: str = "sample"
     # noise schedule: dcm.models.diffusion.NoiseSchedule fields (name, beta_start, ...); conf/schedule/*.yaml
     # omitted fields take NoiseSchedule's defaults (incl. clipping the x0 estimate, which sampling needs)
@@ -159,7 +163,7 @@ class DCMConfig(ForceModelConfig):
     input_scaling: str = "unit"
     # share of each training batch drawn at the pure-noise step T-1, the rest uniform over 0..T-1 (0: the
     # paper's uniform draw, 1/T of the batch there). With input_scaling=signal the net sees about zeros at
-    # that step and regresses the force as the single-pass baseline does (docs/results.md: 0.5 measured, no gain).
+    # that step and regresses the force as the single-pass baseline does (studies/record.md, "The pure-noise step").
     top_step_fraction: float = 0.0
 
     def __post_init__(self) -> None:

@@ -134,10 +134,10 @@ class NoiseSchedule:
     """A named schedule plus the sampler settings that go with it; the `_target_` of conf/schedule/*.yaml.
 
     `clip_sample_range=r` clips the x0 estimate to [-r, r] in normalised units. Forces are normalised to
-    [-1, 1], and with alpha_bar_T ~ 1e-5 the first steps divide the net's error by sqrt(alpha_bar_t), so an
-    unclipped chain amplifies small errors into forces 50x outside the data (measured: val L_MSE 0.52
-    unclipped vs 0.002 with r = 1.5 on the same checkpoint). The default 1.5 leaves room for forces beyond
-    the training min/max (diffusers' own default, 1.0, would saturate them); None disables clipping.
+    [-1, 1], and with alpha_bar_T near 0 the first steps divide the net's error by sqrt(alpha_bar_t), so an
+    unclipped chain amplifies small errors into forces far outside the data. The default 1.5 leaves room
+    for forces beyond the training min/max (diffusers' own default, 1.0, would saturate them); None
+    disables clipping.
     `variance_type`: "fixed_small" = posterior variance beta~_t (Ho et al.'s better-NLL choice and
     diffusers' default); "fixed_large" = beta_t, the paper's Eq. for p(F^(i-1) | F^(i)).
     """
@@ -309,8 +309,6 @@ def check_inference_steps(scheduler: Scheduler, num_inference_steps: int | None)
     return n
 
 
-_inference_steps = check_inference_steps  # former private name, kept for existing callers
-
 
 @torch.no_grad()
 def sample(
@@ -371,8 +369,8 @@ def scale_noisy_input(net: ScoreNet, scheduler: Scheduler, scaling: str = "unit"
     - "unit": x_t as it is (unit variance at every t; the paper's).
     - "signal": x_t * sqrt(alpha_bar_t). Near pure noise the net then sees about zeros, the input the
       one-pass baseline sees, instead of unit-variance noise it must learn to ignore; at low noise it sees
-      about x_t. The net also receives t, so no information is lost. Measured on data=sim: with "unit",
-      even T = 1 (pure noise in, x0 out) ranked a skill's trials below the baseline with the same net.
+      about x_t. The net also receives t, so no information is lost (studies/record.md, "Contact models
+      against the references").
     """
     if scaling not in INPUT_SCALINGS:
         raise ScheduleError(f"input scaling must be one of {INPUT_SCALINGS}, got {scaling!r}")

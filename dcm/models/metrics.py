@@ -8,7 +8,7 @@ is wrong, or low while every ranking is right.
 
 A "skill" here is one demo (the ``demo_id`` attribute of a trajectory): the tuner tunes one demonstrated
 stroke. The ``skill`` attribute of a dataset names the preset's skill *family* ("spiral"), shared by all
-80 spiral demos of ``sim``, so it is not the grouping the tuner sees.
+spiral demos of ``sim``, so it is not the grouping the tuner sees.
 
 Force metrics put a model's force RMSE next to that of copying the demonstrated force (``F_obs := F_demo``):
 a model that does not beat copy-F_demo has learnt nothing about the contact beyond the demo.

@@ -18,9 +18,10 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from dcm.control.objectives import task_loss
+from dcm.models.checkpoint import checkpoint_card, checkpoint_kind
 from dcm.models.configuration import CheckpointKindError, ModelInputError
-from dcm.models.dcm import DCM, ForceModel, _checkpoint_kind
-from dcm.models.export import checkpoint_card
+from dcm.models.dcm import DCM
+from dcm.models.force_model import ForceModel
 from dcm.models.prior_blend import PriorBlend
 from dcm.models.references import COPY_DEMO, CopyDemo, StiffnessRegression, load_reference
 
@@ -51,14 +52,6 @@ def model_class(kind: str) -> type[ForceModel]:
     if kind not in classes:
         raise CheckpointKindError(f"unknown model kind {kind!r}; known: {sorted(classes)}")
     return classes[kind]
-
-
-def checkpoint_kind(path: str | Path) -> str:
-    """The model kind a checkpoint was written by; raises if it is not a dcm force-model checkpoint."""
-    kind, _ = _checkpoint_kind(path)
-    if kind is None:
-        raise CheckpointKindError(f"checkpoint {path} was not written by a dcm force model (no model kind)")
-    return str(kind)
 
 
 def load_model(path: str | Path, map_location: Any = "cpu") -> Any:
@@ -144,7 +137,7 @@ def describe(predictor: Any, n_samples: int | None = None) -> dict[str, Any]:
             "sampling_steps": (predictor.cfg.sampling_steps or predictor.cfg.diffusion_steps) if is_dcm else 1,
             "n_samples": k,
             "net": predictor.cfg.net.get("name"),
-            # named only when it is not the default, so that earlier tuning logs keep their fingerprints
+            # named only when it is not the default, so a log of the default's fingerprint does not depend on it
             **({"task_loss": predictor.cfg.task_loss} if is_dcm and predictor.cfg.task_loss != "of_mean" else {}),
         }
     if isinstance(predictor, PriorBlend):
@@ -170,5 +163,5 @@ def with_prior(predictor: Any, prior: str | Path | None, weight: float, source: 
     return PriorBlend(predictor, ridge, weight)  # checks the weight
 
 
-__all__ = ["ForcePredictor", "Predictor", "TaskLossPredictor", "check_dataset", "checkpoint_kind", "describe",
-           "load_model", "model_class", "predict_task_loss", "with_prior"]
+__all__ = ["ForcePredictor", "Predictor", "TaskLossPredictor", "check_dataset", "describe", "load_model", "model_class",
+           "predict_task_loss", "trained_on", "with_prior"]

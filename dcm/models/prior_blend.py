@@ -2,12 +2,12 @@
 
 A learned model ranks a skill's schedules well where they differ in L_task by more than it errs, and no better
 than chance where they differ by less; the stiffness-only ridge knows nothing of the path but orders
-schedules by what stiffness usually does (docs/results.md, "Which skills can be ranked"). The blend is a
+schedules by what stiffness usually does (studies/record.md, "Which skills can be ranked"). The blend is a
 weighted geometric mean, ``L = L_model ** (1 - w) * L_ridge ** w``: in log space the ridge adds the same
 stiffness preference to every skill, which reorders the schedules of a skill whose predicted L_task barely
 varies and leaves alone those of a skill whose predicted L_task varies a lot. ``w = 0`` is the model, ``w = 1``
-the ridge. Choose ``w`` on a validation split (``python -m dcm.model_table ... --prior <ridge.json>
---prior-weight w`` for a few w) and use it with ``dcm.evaluate prior=... prior_weight=...`` or
+the ridge. Choose ``w`` on a validation split (``python -m studies.model_study.model_table ...
+--prior <ridge.json> --prior-weight w`` for a few w) and use it with ``dcm.evaluate prior=... prior_weight=...`` or
 ``tune.py prior=... prior_weight=...``.
 """
 

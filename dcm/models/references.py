@@ -8,7 +8,7 @@
   It is fitted on **per-skill centred** data, so it learns how stiffness re-orders one skill's trials
   (what the tuner needs) rather than which skills are hard; the global mean is added back so predictions
   have a sensible level. A learned model that does not beat it has not learnt more than "which
-  schedules are usually good". Fit in seconds::
+  schedules are usually good". Fit it with::
 
       python -m dcm.models.references fit --dataset data/sim.h5 --out stiffness_ref.json
 
@@ -31,6 +31,7 @@ import numpy as np
 from scipy import linalg
 
 from dcm.control.objectives import task_loss, task_window_start
+from dcm.models.configuration import ModelInputError
 from dcm.models.metrics import within_skill_correlation
 from dcm.models.stiffness_features import FEATURE_SPEC, batch_phase_values, feature_names, features
 
@@ -42,7 +43,7 @@ ALPHAS = tuple(10.0 ** np.arange(-3, 4))  # ridge strengths tried by grouped cro
 GROUP_KEY = "demo_id"
 
 
-class ReferenceError(ValueError):
+class ReferenceError(ModelInputError):
     """A reference file or fit is unusable; the message names the file and field."""
 
 
@@ -106,7 +107,7 @@ class StiffnessRegression:
 
     @property
     def task_from_s(self) -> float:
-        """Where the L_task it learned starts [s]; 0 for fits made before the window existed."""
+        """Where the L_task it learned starts [s]; 0 when the fit record names no start (the whole trajectory)."""
         return float(self.info.get("task_from_s", 0.0))
 
     def check_window(self, task_from_s: float, source: str) -> None:
@@ -178,7 +179,7 @@ class StiffnessRegression:
                                  loaded.arrays["F_demo"][rows].astype(np.float64), start))
         info = {"dataset": _dataset_identity(Path(path), loaded.attrs), "split": split, "group_key": GROUP_KEY,
                 "phase_method": _phase_method(loaded.attrs)}
-        if task_from_s:  # only when set: the fit records of whole-trajectory fits stay as they were
+        if task_from_s:  # only when set: a whole-trajectory fit records no start
             info["task_from_s"] = float(task_from_s)
         if index is not None:
             info["subset"] = f"{len(L)} of {len(loaded)} trajectories"

@@ -1,10 +1,10 @@
 """The within-skill L_task term a force model can add to its training loss (``task_weight`` > 0).
 
 The tuner asks a model which of one skill's stiffness schedules track the demo better. Within a skill the
-schedules' L_task differ by a few hundredths of a newton during the wipe, about what a model errs by per
-step, so a force loss alone can fit every trajectory closely and still order a skill's trials by its own
-noise. This term scores what the tuner uses: each trial's L_task minus the mean of its skill's trials in
-the batch, predicted against true. Batches must hold several trials per skill (``data.skill_group``).
+schedules' L_task can differ by about as much as a model errs per step, so a force loss alone can fit
+every trajectory closely and still order a skill's trials by its own noise. This term scores what the
+tuner uses: each trial's L_task minus the mean of its skill's trials in the batch, predicted against true.
+Batches must hold several trials per skill (``data.skill_group``).
 """
 
 from __future__ import annotations

@@ -4,13 +4,13 @@ Every strategy proposes per-phase translational stiffness (P, 3) in N/m through 
 (L_task, L_comp). Strategies are seeded: the same (seed, outcomes) give the same proposals, which is what
 makes a resumed or sharded run reproduce an uninterrupted one.
 
-=========  ======================================  ===================================================
+=========  ======================================  ============================================
 name       strategy                                when
-=========  ======================================  ===================================================
-motpe      Optuna's MOTPE (the paper's optimiser)  default; cheap per trial at any budget (1,000 virtual)
+=========  ======================================  ============================================
+motpe      Optuna's MOTPE (the paper's optimiser)  default; cheap per trial at any budget
 random     seeded (log-)uniform sampling           ablation baseline
-botorch    BoTorch qLogNEHVI on a GP               expensive trials, at most ``max_trials`` (200)
-=========  ======================================  ===================================================
+botorch    BoTorch qLogNEHVI on a GP               expensive trials, at most ``max_trials``
+=========  ======================================  ============================================
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Why a second Bayesian optimiser next to MOTPE: a GP models the objectives jointly over the whole box and
 plans a batch of ``q`` proposals together, which makes it the stronger choice when every trial is expensive
-(a robot-based search of 20–50 trials). The price is an exact GP, whose fit and acquisition grow with the
-cube of the observations, so this strategy refuses more than ``max_trials`` trials
-(``search.options.max_trials``, 200 by default): the model's 1,000 virtual trials stay with ``search=motpe``.
+(a robot-based search of a few dozen trials). The price is an exact GP, whose fit and acquisition grow with
+the cube of the observations, so this strategy refuses more than ``max_trials`` trials
+(``search.options.max_trials``): the model's many virtual trials stay with ``search=motpe``.
 
 The strategy
 * works on the unit cube (:meth:`SearchSpace.to_unit`, log space when ``stiffness.log``);
@@ -18,8 +18,8 @@ The strategy
 * is deterministic: the same seed and the same outcomes (in the same ask/tell order) give the same
   proposals, because every random draw (Sobol, MC samples, restarts, fitting) is seeded from
   ``(seed, number of observations)`` inside a forked torch RNG;
-* fits and optimises with ``threads`` torch threads (1 by default, restored afterwards): its matrices are
-  tiny, and on a machine whose cores are busy two threads made one acquisition 18x slower (105 s vs 6 s).
+* fits and optimises with ``threads`` torch threads (restored afterwards): its matrices are tiny, and on a
+  machine whose cores are busy more threads make an acquisition many times slower.
 """
 
 from __future__ import annotations

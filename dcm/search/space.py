@@ -63,12 +63,11 @@ class SearchSpace:
         return self.min_Npm, self.max_Npm, values
 
 
-
 def space_from_settings(stiffness: Mapping[str, Any], error: type[Exception] = ValueError) -> SearchSpace:
     """The search space of a ``conf/stiffness`` mapping, checked against the controller's limits.
 
-    Generation and tuning both call this before any work, so ``stiffness.max_Npm=1e6`` fails at once with
-    ``stiffness.max_Npm = 1e+06 is above the controller's limit 3000 N/m`` (raised as ``error``)."""
+    Generation and tuning both call this before any work, so a value beyond the controller's limits fails at
+    once, naming the setting and the limit (raised as ``error``)."""
     from dcm.cli import check_integer, check_number
     from dcm.control import DAMPING_MODES, StiffnessLimits
 
@@ -91,6 +90,7 @@ def space_from_settings(stiffness: Mapping[str, Any], error: type[Exception] = V
     if not isinstance(stiffness["log"], bool):
         raise error(f"stiffness.log = {stiffness['log']!r} must be true or false")
     return SearchSpace(n_phases=n_phases, min_Npm=low, max_Npm=high, log=stiffness["log"])
+
 
 class StiffnessSearch(Protocol):
     """ask() proposes (P, 3) stiffness in N/m; tell() reports (L_task, L_comp), or None for a failed trial.

@@ -1,7 +1,8 @@
 """Wiping simulator: bowls, embodiments under Cartesian impedance control, demos and rollouts.
 
-Control runs at 20 Hz (``dt = 0.05 s``, 25 physics substeps of 2 ms); a default demo lasts 8 s, so
-``H = 160`` control steps. Frames and units are those documented in ``dcm.control``.
+One control period (``CONTROL_DT_S`` by default) runs several physics substeps (``PHYSICS_DT_S``); a demo of
+``duration_s`` has ``H = duration_s / dt`` control steps. Frames and units are those documented in
+``dcm.control``.
 
 Heavy pieces (MuJoCo models, the ``Simulator``) are imported lazily so that light users (configs,
 dataset readers) do not pay for them.

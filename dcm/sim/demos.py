@@ -6,9 +6,8 @@ controller* (fixed stiffness ``stiffness_Npm``; attractor = surface point pushed
 surface normal; a smooth approach from ``hover_m`` above the surface during the first ``approach_s``) and
 records the observed pose and contact wrench as a ``Demo``: ``x_demo (H, 6)`` and ``force_demo (H, 6)``.
 
-Timing: the control rate is 20 Hz (``dt = 0.05 s``) unless the simulator says otherwise, and
-``H = round(duration_s * control_hz)`` steps, sample ``k`` at ``t = k dt`` (8 s -> H = 160). Waypoint files
-define their own duration: ``H = floor((t_last - t_first) * control_hz) + 1``.
+Timing: at the simulator's control rate, ``H = round(duration_s * control_hz)`` steps, sample ``k`` at
+``t = k dt``. Waypoint files define their own duration: ``H = floor((t_last - t_first) * control_hz) + 1``.
 
 Waypoint CSV: header ``t,x,y,press``; ``t`` [s] strictly increasing, ``x, y`` [m] in the bowl frame,
 ``press`` [m] the pressing depth below the surface (negative = above it). Rows are linearly resampled to
@@ -191,9 +190,8 @@ class DemoSpec:
             raise DemoSpecError(f"{where}: family = {self.family!r}; expected one of {FAMILIES}")
         unknown = set(self.params) - set(FAMILY_PARAMS[self.family])
         if unknown:
-            raise DemoSpecError(
-                f"{where}: unknown {self.family} parameter(s) {sorted(unknown)}; known: {sorted(FAMILY_PARAMS[self.family])}"
-            )
+            raise DemoSpecError(f"{where}: unknown {self.family} parameter(s) {sorted(unknown)}; "
+                                f"known: {sorted(FAMILY_PARAMS[self.family])}")
         if self.family == "waypoints" and not self.waypoints:
             raise DemoSpecError(f"{where}: family 'waypoints' needs a 'waypoints' CSV path")
         if self.family == "spiral" and self.params.get("direction", "ccw") not in ("cw", "ccw"):
@@ -210,7 +208,8 @@ class DemoSpec:
             if not isinstance(value, (int, float)) or not math.isfinite(value) or not (low <= value <= high):
                 raise DemoSpecError(f"{where}: {key} = {value!r} is outside [{low}, {high}]")
         if self.approach_s >= self.duration_s and self.family != "waypoints":
-            raise DemoSpecError(f"{where}: approach_s = {self.approach_s} must be shorter than duration_s = {self.duration_s}")
+            raise DemoSpecError(f"{where}: approach_s = {self.approach_s} must be shorter than "
+                                f"duration_s = {self.duration_s}")
         if len(self.stiffness_Npm) != 3 or not all(50.0 <= k <= 3000.0 for k in self.stiffness_Npm):
             raise DemoSpecError(f"{where}: stiffness_Npm = {self.stiffness_Npm} needs 3 values in [50, 3000] N/m")
         if not isinstance(self.lead, bool):
@@ -228,7 +227,7 @@ class DemoSpec:
             "stiffness_Npm": list(self.stiffness_Npm),
             "waypoints": self.waypoints,
             "bowl": self.bowl.to_dict(),
-            # Written only when set, so specs (and the demos seeded from their JSON) from before it stay identical.
+            # Written only when set, so a spec without it serialises, and seeds its demos, as if it did not exist.
             **({"lead": True} if self.lead else {}),
         }
 

@@ -112,8 +112,8 @@ class DomainSpec(SpecIO):
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields as plain values. The per-rollout spreads are left out while they are 0, so that datasets
-        and tuning logs written before the fields existed keep their fingerprints."""
+        """The fields as plain values. The per-rollout spreads are left out while they are 0, so a domain without
+        them fingerprints as if they did not exist and the datasets and tuning logs of such domains stay valid."""
         out = asdict(self)
         for key in PER_ROLLOUT_SPREADS:
             if not out[key]:
@@ -143,10 +143,9 @@ class DomainSpec(SpecIO):
 
 PRESETS: dict[str, dict[str, Any]] = {
     "nominal": {"name": "nominal"},
-    # A stand-in for a physical setup (not real data): values chosen to be plausible for a Franka with a
-    # wiping sponge: ~30% more friction, a softer surface, a few N of joint friction, a tool 20% heavier
-    # than the controller's model, a few N of F/T bias, ~0.3 N noise, a 5 Hz sensor filter and one control
-    # period (50 ms) of command latency.
+    # A stand-in for a physical setup (not real data), plausible for a Franka with a wiping sponge: more
+    # friction, a softer surface, joint friction, a tool heavier than the controller's model, a biased, noisy
+    # and low-passed F/T sensor, and one control period of command latency.
     "realistic": {
         "name": "realistic",
         "friction_scale": 1.3,

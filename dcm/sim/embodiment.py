@@ -3,8 +3,8 @@
 An embodiment owns one MuJoCo model (the robot or tool plus the bowl from ``scene.add_bowl``) and executes
 the Cartesian impedance law ``F_cmd = K (x_attr - x) - D xdot`` (+ gravity/bias compensation) at every
 physics step. The ``Simulator`` calls ``step`` once per control period with an attractor and the already
-filtered stiffness and its damping; everything shared by both embodiments (attractor, limits, filtering, sensing noise,
-latency, divergence checks, objectives) lives in ``rollout.py``.
+filtered stiffness and its damping; everything shared by both embodiments (attractor, limits, filtering,
+sensing noise, latency, divergence checks, objectives) lives in ``rollout.py``.
 
 Frames: poses, velocities and the contact wrench are in the bowl frame (see ``dcm.control``).
 """
@@ -30,7 +30,7 @@ CONTROL_DT_S = 0.05
 class StepResult:
     """What one control period produced.
 
-    ``force_contact`` and ``force_sensor`` are averages over the period's physics substeps: single 2 ms
+    ``force_contact`` and ``force_sensor`` are averages over the period's physics substeps: single substep
     readings of a sliding tip chatter between contact and no contact, their average is smooth.
     """
 

@@ -35,9 +35,8 @@ class BowlSpecError(ValueError):
 class BowlSpec(SpecIO):
     """A bowl (or plate) and its contact properties.
 
-    ``solref``/``solimp`` follow MuJoCo's meaning. The defaults are deliberately soft
-    (``solimp = [0, 0.95, 0.005]``): with MuJoCo's stiff default a sliding sphere chatters on the
-    heightfield facets and the force shows spikes of tens of newtons.
+    ``solref``/``solimp`` follow MuJoCo's meaning. The defaults are deliberately soft: with MuJoCo's stiff
+    default a sliding sphere chatters on the heightfield facets and the force spikes.
     """
 
     spec_kind: ClassVar[str] = "bowl"

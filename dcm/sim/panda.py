@@ -10,10 +10,10 @@ with ``K`` the diagonal Cartesian stiffness (N/m, N·m/rad) and ``D`` the dampin
 
 * The spring-damper ``J^T (K e - D xdot)`` is six MuJoCo position actuators with *site transmission* on the
   tool centre point, referenced to two mocap "attractor" sites (one world-aligned for the translations, one
-  carrying the attractor orientation for the rotations). MuJoCo evaluates it at every 2 ms physics step, with
+  carrying the attractor orientation for the rotations). MuJoCo evaluates it at every physics step, with
   the damping integrated implicitly (``implicitfast``), so the law is exact per physics step while Python only
   rewrites six gains and the two mocap poses once per control period. Each joint's summed actuator torque is
-  clamped to Franka's limits (87/12 N·m).
+  clamped to Franka's joint torque limits.
 * Gravity is compensated by MuJoCo's body ``gravcomp`` (exact, every step). The tool is compensated with its
   *configured* (nominal) mass, so a heavier tool in the shifted domain sags onto the surface as an unmodelled
   payload does on a real arm.
@@ -21,14 +21,13 @@ with ``K`` the diagonal Cartesian stiffness (N/m, N·m/rad) and ``D`` the dampin
   per control period and held (``qfrc_applied``).
 
 Two reference variants exist only to validate that choice (``controller="python"`` evaluates the whole law in
-Python at every physics step, as franka_ros does at 1 kHz; ``slow_terms="substep"`` refreshes Coriolis and
-nullspace every physics step). Measured on a spiral demo at 300-1500 N/m: the default differs from the
-per-step Python controller by 0.06-0.14 N RMS in contact force (L_task there: 1.5-2.3 N) and runs ~2.5x
-faster (``python bench/sim_throughput.py --variants``).
+Python at every physics step, as franka_ros does; ``slow_terms="substep"`` refreshes Coriolis and nullspace
+every physics step); ``python bench/sim_throughput.py --variants`` compares their forces and speed with the
+default's.
 
-Dynamics worth knowing: with robosuite's link inertias (and armature 0.1) the tip's apparent mass is about
-8-13 kg, so unit-mass damping D = 2 sqrt(K) leaves the arm under-damped (damping ratio ~0.3): it rings after
-every stiffness change. The ``Simulator`` therefore damps critically for ``apparent_mass`` by default
+Dynamics worth knowing: with robosuite's link inertias the tip's apparent mass is several kilograms, so
+unit-mass damping D = 2 sqrt(K) leaves the arm under-damped: it rings after every stiffness change. The
+``Simulator`` therefore damps critically for ``apparent_mass`` by default
 (``damping="critical"``); ``damping="unit"`` gives the paper's D = 2 sqrt(K). Rotational gains act
 about the tool's axes, which differ from the bowl's only by sign flips near the nominal pose, so a diagonal
 rotational stiffness means the same thing in both. The bowl sits ``BOWL_ORIGIN_WORLD`` from the arm's base.
@@ -110,12 +109,12 @@ class PandaEmbodiment:
 
     name = "panda"
     # Diagonal of the apparent Cartesian mass Λ = (J M⁻¹ Jᵀ)⁻¹ at the TCP over the bowl's centre [kg, kg·m²]:
-    # what critical damping uses. Over the default bowl Λ varies by about ±30 % (x 11-13, y 7-9, z 10-18 kg);
-    # tests/test_sim_panda.py checks these values against the model.
+    # what critical damping uses. Λ varies over the bowl; tests/test_sim_panda.py checks these values against
+    # the model.
     apparent_mass = (10.0, 10.0, 10.0, 2.0, 0.9, 0.2)
     # No ``attractor_inertia_kg``: the rollout attractor leaves out Λ ẍ_demo, as a controller that does not
-    # know the arm's inertia. With it (10 kg) the arm tracks the demo at any stiffness: L_task(100 N/m) /
-    # L_task(2,500 N/m) falls to 1.1-1.2 on sim_contact's valid spirals, no trade-off left to tune (docs/results.md).
+    # know the arm's inertia. With it the arm tracks the demo at any stiffness, and no trade-off is left to tune
+    # (studies/record.md).
 
     def __init__(
         self,

@@ -1,16 +1,16 @@
 """Assemble a Franka Panda with a wiping tool in plain MuJoCo (MjSpec) from robosuite's robot assets.
 
 Why plain MuJoCo and not robosuite's environment: robosuite's OSC gain is an acceleration gain scaled by the
-arm's inertia (not a stiffness in N/m), and its Python framework costs milliseconds per physics step. Here the
+arm's inertia (not a stiffness in N/m), and its Python framework is slow at every physics step. Here the
 Cartesian impedance law runs inside MuJoCo's own actuator model (see ``dcm.sim.panda``), and only the mesh and
 kinematic/inertial data come from robosuite.
 
 What is changed from robosuite's ``robot.xml`` and why:
 
-* joint armature 0.1 kg·m² (robosuite adds 5/(i+1), which makes the tool feel 5-33 kg heavy, too heavy for
-  unit-mass critical damping D = 2 sqrt(K));
+* a small joint armature (robosuite's large one makes the tool feel many times heavier at the tip, far too
+  heavy for unit-mass critical damping D = 2 sqrt(K));
 * the joint motors are removed (the impedance actuators replace them) and each joint's total actuator torque is
-  clamped to Franka's limits (87 N·m for joints 1-4, 12 N·m for the wrist);
+  clamped to Franka's limits (``TORQUE_LIMITS_NM``);
 * every arm body is gravity compensated (``gravcomp``), as the Franka's controller does;
 * the arm's collision meshes are disabled: only the tool's sphere tip touches the bowl (a flat pad catches on
   heightfield facets, and arm contacts would only cost time);
@@ -48,7 +48,7 @@ IMPEDANCE_ACTUATORS = ("imp_x", "imp_y", "imp_z", "imp_rx", "imp_ry", "imp_rz")
 
 # The tool frame (and the TCP site's frame) has z along the tool, pointing away from the flange. "Pointing
 # straight down" means tool z = -world z with tool x = world x: a half turn about x. The TCP site keeps the tool
-# body's orientation: MuJoCo 3.9's rotational site transmission measured the error with a rotated site frame
+# body's orientation: MuJoCo's rotational site transmission (3.9) measures the error with a rotated site frame
 # inconsistently with its own actuator velocity (a positive-feedback wrist), so the frames are kept equal.
 NOMINAL_TOOL_QUAT = np.array([0.0, 1.0, 0.0, 0.0])
 

@@ -4,15 +4,14 @@ What lives here (shared by both embodiments): demo recording, the attractor (``d
 limits and low-pass filtering, command latency, F/T bias/noise/low-pass from the ``DomainSpec``,
 divergence detection and the objectives ``L_task`` [N] and ``L_comp`` [kN/m].
 
-Timing: ``control_hz = 20`` by default (``dt = 0.05 s``, 25 physics substeps of 2 ms); a default 8 s demo
-gives ``H = 160`` control steps. Step ``k`` applies command ``k`` for one period and records the state at
-its end.
+Timing: step ``k`` applies command ``k`` for one control period (several physics substeps) and records the
+state at its end; a demo of ``duration_s`` has ``H = duration_s * control_hz`` steps.
 
 Determinism: sensor noise and the bowl's offset and friction (``DomainSpec.bowl_offset_std_m``,
 ``bowl_friction_std``) are drawn from a generator seeded by the simulator seed and a hash of the inputs (the
 demo's spec and the stiffness schedule), so the same inputs give identical arrays, whatever ran before;
-another simulator seed gives another draw. The hash leaves out the simulated demo arrays, whose last bits
-differ between CPUs: with them, another machine drew every rollout's bowl offset anew.
+another simulator seed gives another draw. The hash leaves out the simulated demo arrays: their last bits
+differ between CPUs, and the draws must not.
 """
 
 from __future__ import annotations
@@ -125,7 +124,7 @@ class _Execution:
 class DivergenceBounds:
     """Limits past which a trial counts as diverged."""
 
-    max_force_N: float = 300.0  # contact force norm; the reference saw >100 N spikes only when unstable
+    max_force_N: float = 300.0  # contact force norm, far above what a stable wiping contact reaches
     max_above_surface_m: float = 0.15  # the tool flew off
     max_below_surface_m: float = 0.04  # the tool tunnelled into the bowl
 
@@ -218,9 +217,9 @@ class Simulator:
 
         With ``spec.lead`` the demonstrator's attractor runs ahead of the path by ``K⁻¹(D ẋ + m ẍ)``, with
         the controller's damping and the embodiment's apparent mass ``m``, so the tool follows the path
-        instead of trailing it (on ``sim``'s fast spirals, 0.21-0.37 m/s at 800 N/m, the trailing tool is
-        4-7 cm behind and skims off the bowl wall). Rollouts keep the paper's attractor, whose inertia term
-        this embodiment does not know (``attractor_inertia_kg``).
+        instead of trailing it (on a fast path a trailing tool lags by centimetres and skims off the bowl wall).
+        Rollouts keep the paper's attractor, whose inertia term this embodiment does not know
+        (``attractor_inertia_kg``).
         """
         attractor = spec.attractor_path(self.control_hz)
         stiffness = np.tile(np.r_[spec.stiffness_Npm, 20.0, 20.0, 20.0], (len(attractor), 1))
@@ -295,7 +294,7 @@ class Simulator:
 
     def _bowl_draw(self, rng: np.random.Generator) -> tuple[float, float]:
         """This rollout's bowl offset [m] and friction factor. Each is drawn only when its spread is set, so a
-        domain without them draws its sensor noise as before they existed."""
+        domain without spreads draws the same sensor noise as if these did not exist."""
         offset_std, friction_std = self.domain.bowl_offset_std_m, self.domain.bowl_friction_std
         offset = float(rng.normal(0.0, offset_std)) if offset_std else 0.0
         factor = float(np.exp(rng.normal(0.0, friction_std) - friction_std**2 / 2)) if friction_std else 1.0
@@ -331,8 +330,7 @@ class Simulator:
         return np.random.default_rng([self.seed, crc])
 
     # The controllers' small matrix products run on one BLAS thread: OpenBLAS otherwise splits them by the thread
-    # count (OMP_NUM_THREADS), which moved a rollout's L_task by up to 4e-13 N between 1 and 2 threads, so the
-    # same inputs gave other bytes in another shell.
+    # count (OMP_NUM_THREADS), and a rollout's bytes would depend on the shell it ran in.
     @threadpool_limits.wrap(limits=1, user_api="blas")
     def _execute(
         self,

@@ -1,19 +1,16 @@
 """``tool``: a compliant wiping tool driven directly by the Cartesian impedance law in plain MuJoCo.
 
-A ~1 kg body on three world-aligned slide joints (x, y, z) carries, through a wrist force/torque sensor,
+A light body on three world-aligned slide joints (x, y, z) carries, through a wrist force/torque sensor,
 a sphere tip (a flat pad catches on heightfield facets). Orientation is fixed (tool pointing straight
 down), so the rotational pose channels are 0 and rotational stiffness has no effect.
 
 The impedance law runs at every physics step inside MuJoCo: each slide joint has a position-type actuator
-with gain ``kp = K`` and bias ``-kp q - kv qdot`` (``kv = D`` from the ``Simulator``; critical damping for
-the 1 kg tool is the paper's ``2 sqrt(K)``) whose control input is the attractor. Python rewrites gains and attractor once per
-control period, so the per-substep Python work is one ``mj_step`` and one vector add (for the averaged
-wrench). The ``implicitfast`` integrator treats the actuator damping implicitly, which keeps stiff
-settings stable at 2 ms.
-
-Speed (2 cores, shared): ~850 control steps/s at 20 Hz on an idle core, 75-95% of the raw
-``mj_step(nstep=25)`` rate of the same model (the contact-rich heightfield step dominates); under heavy
-load both drop together (~350 vs ~450/s).
+with gain ``kp = K`` and bias ``-kp q - kv qdot`` (``kv = D`` from the ``Simulator``; critical damping for a
+tool of about unit mass is the paper's ``2 sqrt(K)``) whose control input is the attractor. Python rewrites
+gains and attractor once per control period, so the per-substep Python work is one ``mj_step`` and one vector
+add (for the averaged wrench): the contact-rich heightfield step dominates the cost
+(``python bench/sim_throughput.py`` measures it). The ``implicitfast`` integrator treats the actuator damping
+implicitly, which keeps stiff settings stable at the physics step.
 
 Frames: joint positions are the tool-tip point (TCP, the lowest point of the sphere) in the bowl frame,
 because the bowl origin sits at the world origin here.
@@ -138,8 +135,8 @@ def build_tool_spec(bowl: BowlSpec, domain: DomainSpec, physics_dt: float = PHYS
 class ToolEmbodiment:
     """The fast embodiment: one MuJoCo model built once, commanded once per control period.
 
-    ``step`` runs ``control_dt / physics_dt`` substeps (25 at 20 Hz / 2 ms) and returns the contact
-    wrench and the sensor reading averaged over them.
+    ``step`` runs ``control_dt / physics_dt`` substeps and returns the contact wrench and the sensor reading
+    averaged over them.
     """
 
     name = "tool"

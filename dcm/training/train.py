@@ -32,10 +32,11 @@ from dcm.data.datamodule import DCMDataModule
 from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
 from dcm.models.callbacks import ForceMetricsCallback, RandomStateCallback, RunETACallback
+from dcm.models.checkpoint import checkpoint_kind, read_checkpoint
 from dcm.models.configuration import CheckpointKindError
-from dcm.models.dcm import DCM, ForceModel, read_checkpoint
+from dcm.models.dcm import DCM
+from dcm.models.force_model import ForceModel
 from dcm.models.nets import get_score_net_class
-from dcm.models.predict import checkpoint_kind
 from dcm.training import run_dir as rd
 
 log = logging.getLogger(__name__)
@@ -239,10 +240,12 @@ class SelectionCheckpoint(ModelCheckpoint):
 def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     """Fit (or resume) one run in ``run_dir``; returns the summary also written to summary.json."""
     check_accelerator(cfg.trainer.get("accelerator", "auto"))
-    filename = checkpoint_filename(cfg.checkpoint)
-    run_dir.mkdir(parents=True, exist_ok=True)
     ckpt_dir, last = rd.checkpoint_dir(run_dir), rd.last_checkpoint(run_dir)
     resuming = bool(cfg.get("resume"))
+    if resuming:
+        read_checkpoint(last)  # plain data only: a file that would run code is refused here, in one line
+    filename = checkpoint_filename(cfg.checkpoint)
+    run_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(int(cfg.seed), workers=True)
 
     path = dataset_path(cfg)
@@ -270,7 +273,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     logger = TensorBoardLogger(save_dir=str(run_dir), name=rd.TB_DIR, version="", default_hp_metric=False)
     trainer_kwargs = OmegaConf.to_container(cfg.trainer, resolve=True)
     trainer = L.Trainer(default_root_dir=str(run_dir), logger=logger, callbacks=callbacks, **trainer_kwargs)
-    trainer.fit(model, datamodule=dm, ckpt_path=str(last) if resuming else None)
+    trainer.fit(model, datamodule=dm, ckpt_path=str(last) if resuming else None, weights_only=True)
 
     best = checkpoint.best_model_path or (str(last) if last.exists() else "")
     best_score = checkpoint.best_model_score if checkpoint.best_model_path else None
@@ -282,7 +285,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         "best_score": None if best_score is None else float(best_score),
     }
     if cfg.test_after_fit and best and _has_split(path, "test"):
-        results = trainer.test(model, datamodule=dm, ckpt_path=best, verbose=False)
+        results = trainer.test(model, datamodule=dm, ckpt_path=best, verbose=False, weights_only=True)
         summary["test"] = {k: float(v) for k, v in (results[0] if results else {}).items()}
     elif cfg.test_after_fit:
         log.warning("no test split in %s (or no checkpoint): skipping the test pass", path)

@@ -41,7 +41,7 @@ class TrialLog:
 
     phase_stiffness: list[np.ndarray] = field(default_factory=list)  # each (P, 3) N/m
     objectives: list[np.ndarray] = field(default_factory=list)  # each (2,), NaN if the trial failed
-    fingerprint: dict[str, Any] | None = None  # JSON mapping; None: a log written before fingerprints existed
+    fingerprint: dict[str, Any] | None = None  # JSON mapping; None: the log records none
     # Not part of the fingerprint, only quoted in messages (e.g. the checkpoint path that was hashed).
     notes: dict[str, Any] = field(default_factory=dict)
 

@@ -1,0 +1,329 @@
+"""The base class the DCM and the baseline share, as a LightningModule.
+
+Both models own their normalisers (buffers, saved in every checkpoint), an EMA copy of the score net used
+for validation and prediction, and the one prediction call users need::
+
+    from dcm.models.dcm import DCM
+    model = DCM.load_from_checkpoint("runs/.../checkpoints/last.ckpt")
+    mean_N, std_N = model.predict_forces(x_demo, F_demo, x_attr, K, n_samples=8)   # (B,H,6) each, raw units
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any, ClassVar
+
+import lightning as L
+import numpy as np
+import torch
+from torch import nn
+
+from dcm import __version__
+from dcm.control.objectives import TASK_LOSSES, task_loss, task_loss_over_samples, task_window_start
+from dcm.data.schema import cond_slice
+from dcm.models.checkpoint import KIND_KEY, VERSION_KEY, _incompatible, check_code_version, read_checkpoint
+from dcm.models.cond_encoding import encode_conditions
+from dcm.models.configuration import CheckpointKindError, DataSpec, ForceModelConfig, ModelInputError
+from dcm.models.nets import build_score_net
+from dcm.models.normalizer import ChannelNormalizer
+from dcm.models.task_ranking import within_skill_task_error
+
+COND_DIM = 24
+OUT_DIM = 6
+_F_DEMO = cond_slice("F_demo")
+
+
+class ForceModel(L.LightningModule):
+    """Shared machinery: score net + EMA copy, normalisers, data spec, optimiser, ``predict_forces``."""
+
+    model_kind: ClassVar[str] = "force_model"
+    config_cls: ClassVar[type[ForceModelConfig]] = ForceModelConfig
+
+    def __init__(self, data_spec: dict[str, Any] | None = None, **config: Any) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.cfg = self.config_cls.from_kwargs(config)
+        self.data_spec = DataSpec(**(data_spec or {}))
+        net_kwargs = {k: v for k, v in self.cfg.net.items() if k != "name"}
+        self.net = build_score_net(self.cfg.net["name"], cond_dim=COND_DIM, out_dim=OUT_DIM, **net_kwargs)
+        self.ema_net: nn.Module | None = None
+        if self.cfg.ema_decay > 0:
+            self.ema_net = copy.deepcopy(self.net).requires_grad_(False)
+        self.cond_norm = ChannelNormalizer(COND_DIM)
+        self.target_norm = ChannelNormalizer(OUT_DIM)
+
+    # ------------------------------------------------------------------ checkpoint identity
+    @classmethod
+    def load_from_checkpoint(cls, checkpoint_path: str | Path, map_location: Any = None, **kwargs: Any):  # type: ignore[override]
+        """Load a checkpoint written by this class, as plain data only (:func:`read_checkpoint`). Another model's
+        checkpoint, one whose parameter names no longer fit the code, or a file that would run code raises a
+        ModelInputError; one from another dcm version warns, naming both."""
+        ckpt = read_checkpoint(checkpoint_path)
+        kind, written_by = ckpt.get(KIND_KEY), ckpt.get(VERSION_KEY)
+        if kind != cls.model_kind:
+            raise CheckpointKindError(
+                f"checkpoint {checkpoint_path} holds a {kind!r} model, not {cls.model_kind!r}; "
+                "load it with its own class or with dcm.models.predict.load_model, which picks the class")
+        check_code_version(checkpoint_path, written_by)
+        try:
+            return super().load_from_checkpoint(checkpoint_path, map_location=map_location or "cpu",
+                                                **{**kwargs, "weights_only": True})
+        except RuntimeError as err:
+            if "state_dict" not in str(err):
+                raise
+            raise _incompatible(checkpoint_path, written_by, err) from None
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint[KIND_KEY] = self.model_kind
+        checkpoint[VERSION_KEY] = __version__
+
+    # ------------------------------------------------------------------ normalisation
+    def fit_normalizers(self, cond: Any, target: Any) -> None:
+        """Fit both normalisers on the training split's raw conditions (N,H,24) and targets F_obs (N,H,6), the
+        way ``cfg.normalization`` says, on the residual when ``cfg.target == "residual"``. They are saved
+        with the weights, so a fine-tuned model keeps its pre-training statistics."""
+        cond = torch.as_tensor(np.asarray(cond, dtype=np.float32))
+        target = torch.as_tensor(np.asarray(target, dtype=np.float32))
+        self.cond_norm.fit_data(encode_conditions(cond, self.cfg.cond_encoding), self.cfg.normalization)
+        self.target_norm.fit_data(self.model_target(cond, target), self.cfg.normalization)
+
+    def model_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
+        """What the net learns, in physical units: F_obs, or F_obs - F_demo for a residual model."""
+        if self.cfg.target == "residual":
+            return force - cond[..., _F_DEMO]
+        return force
+
+    def force_from_target(self, cond: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
+        """The inverse of ``model_target``: the wrench F_obs [N, N·m] from the net's (un-normalised) output."""
+        if self.cfg.target == "residual":
+            return value + cond[..., _F_DEMO]
+        return value
+
+    def _require_fitted(self) -> None:
+        if not (bool(self.cond_norm.fitted) and bool(self.target_norm.fitted)):
+            raise ModelInputError(f"{type(self).__name__}: normalisers are not fitted; call fit_normalizers "
+                                  "with the training split's data (train.py does) before use")
+
+    @property
+    def inference_net(self) -> nn.Module:
+        """The EMA weights when kept, else the trained ones."""
+        return self.ema_net if self.ema_net is not None else self.net
+
+    # ------------------------------------------------------------------ the model-specific parts
+    def denoising_outputs(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+                          generator: torch.Generator | None = None, groups: torch.Tensor | None = None
+                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The net's training output, its target and the force estimate (normalised units) it implies; rows
+        sharing a label in ``groups`` share their random draws (:func:`diffusion.denoising_outputs`)."""
+        raise NotImplementedError
+
+    def loss(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+             generator: torch.Generator | None = None, cond: torch.Tensor | None = None,
+             groups: torch.Tensor | None = None) -> torch.Tensor:
+        """The force loss: MSE of the net's output against its target. With ``task_weight`` > 0, and the
+        batch's raw conditions ``cond`` and skill labels ``groups`` given, plus ``task_weight`` times the
+        within-skill L_task error of the implied force (:meth:`task_term`)."""
+        return self._weighted(self.loss_terms(net, cond_n, target_n, generator, cond, groups))
+
+    def _weighted(self, terms: dict[str, torch.Tensor]) -> torch.Tensor:
+        return terms["force"] + self.cfg.task_weight * terms["task"] if "task" in terms else terms["force"]
+
+    def loss_terms(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
+                   generator: torch.Generator | None = None, cond: torch.Tensor | None = None,
+                   groups: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The unweighted parts of :meth:`loss`: ``force``, and ``task`` when the task term applies."""
+        with_task = self.cfg.task_weight > 0 and cond is not None and groups is not None
+        output, target, estimate_n = self.denoising_outputs(net, cond_n, target_n, generator,
+                                                            groups if with_task else None)
+        terms = {"force": torch.nn.functional.mse_loss(output, target)}
+        if with_task:
+            terms["task"] = self.task_term(cond, estimate_n, target_n, groups)
+        return terms
+
+    def task_term(self, cond: torch.Tensor, estimate_n: torch.Tensor, target_n: torch.Tensor,
+                  groups: torch.Tensor) -> torch.Tensor:
+        """Within-skill error of L_task (from ``cfg.task_from_s``) of the estimated against the true force,
+        in the normaliser's force units so that ``task_weight`` does not depend on the data's scale."""
+        F_demo = cond[..., _F_DEMO]
+        start = task_window_start(self.cfg.task_from_s, self.data_spec.control_hz, cond.shape[-2])
+        force_scale = self.target_norm.scale[:3].mean()
+        L_pred, L_true = (task_loss(self.force_from_target(cond, self.target_norm.unnormalize(value)), F_demo, start)
+                          for value in (estimate_n, target_n))
+        return within_skill_task_error(L_pred * force_scale, L_true * force_scale, groups)
+
+    def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
+                          generator: torch.Generator | None = None) -> torch.Tensor:
+        """(n_samples, B, H, 6) force samples in normalised units for normalised conditions (B, H, 24)."""
+        raise NotImplementedError
+
+    @property
+    def default_samples(self) -> int:
+        return 1
+
+    # ------------------------------------------------------------------ Lightning hooks
+    def on_fit_start(self) -> None:
+        self._require_fitted()
+
+    def normalized_cond(self, cond: torch.Tensor) -> torch.Tensor:
+        """The net's condition input for raw conditions: encoded (``cfg.cond_encoding``), then normalised."""
+        return self.cond_norm.normalize(encode_conditions(cond, self.cfg.cond_encoding))
+
+    def normalized_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
+        """The training target in normalised units for raw conditions and F_obs."""
+        return self.target_norm.normalize(self.model_target(cond, force))
+
+    def _batch_loss(self, net: nn.Module, batch: dict[str, torch.Tensor], generator: torch.Generator | None = None,
+                    prefix: str | None = None) -> torch.Tensor:
+        """The loss of a batch; with ``prefix``, its parts are logged as ``<prefix>/loss_force`` and
+        ``<prefix>/loss_task`` when the task term applies."""
+        cond = batch["cond"]
+        terms = self.loss_terms(net, self.normalized_cond(cond), self.normalized_target(cond, batch["target"]),
+                                generator, cond=cond, groups=batch.get("skill"))
+        if prefix and "task" in terms:
+            for name, value in terms.items():
+                self.log(f"{prefix}/loss_{name}", value, on_step=False, on_epoch=True, batch_size=cond.shape[0],
+                         sync_dist=prefix != "train")
+        return self._weighted(terms)
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        loss = self._batch_loss(self.net, batch, prefix="train")
+        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=batch["cond"].shape[0])
+        return loss
+
+    def _eval_loss(self, batch: dict[str, torch.Tensor], batch_idx: int, prefix: str) -> torch.Tensor:
+        # A fixed generator per batch makes the (noisy) diffusion loss comparable across epochs.
+        gen = torch.Generator(device=self.device).manual_seed(10_000 + batch_idx)
+        loss = self._batch_loss(self.inference_net, batch, gen, prefix)
+        self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=batch["cond"].shape[0],
+                 sync_dist=True)
+        return loss
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._eval_loss(batch, batch_idx, "val")
+
+    def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._eval_loss(batch, batch_idx, "test")
+
+    @torch.no_grad()
+    def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
+        """EMA update after every optimiser step, with the usual warm-up so early averages are not stale."""
+        if self.ema_net is None:
+            return
+        step = max(int(self.global_step), 1)
+        decay = min(self.cfg.ema_decay, (1 + step) / (10 + step))
+        ema_params = list(self.ema_net.parameters())
+        params = [p.detach() for p in self.net.parameters()]
+        torch._foreach_lerp_(ema_params, params, 1.0 - decay)
+        for b_ema, b in zip(self.ema_net.buffers(), self.net.buffers()):
+            b_ema.copy_(b)
+
+    def configure_optimizers(self) -> Any:
+        optimizer = torch.optim.AdamW(self.net.parameters(), lr=self.cfg.lr, weight_decay=self.cfg.weight_decay)
+        warmup = int(self.cfg.warmup_steps)
+        total = 0
+        if self.cfg.lr_schedule == "cosine" and self._trainer is not None:
+            total = int(self.trainer.estimated_stepping_batches)
+            if not math.isfinite(total) or total <= 0:
+                total = 0  # max_epochs=-1 / only max_time: cosine has no end, fall back to constant
+
+        def factor(step: int) -> float:
+            if warmup and step < warmup:
+                return (step + 1) / warmup
+            if total > warmup:
+                progress = min(1.0, (step - warmup) / max(1, total - warmup))
+                return 0.5 * (1.0 + math.cos(math.pi * progress))
+            return 1.0
+
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    # ------------------------------------------------------------------ prediction API
+    @torch.no_grad()
+    def predict_normalized(self, cond_n: torch.Tensor, n_samples: int | None = None,
+                           generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and spread over ``n_samples`` samples, normalised units, for (B,H,24) normalised conditions."""
+        k = self.default_samples if n_samples is None else int(n_samples)
+        if k < 1:
+            raise ModelInputError(f"n_samples must be >= 1, got {n_samples}")
+        was_training = self.training
+        self.eval()
+        try:
+            means, stds = [], []
+            for chunk in cond_n.split(max(1, self.cfg.eval_batch_size // k)):
+                samples = self.sample_normalized(chunk, k, generator)
+                means.append(samples.mean(0))
+                stds.append(samples.std(0, unbiased=False) if k > 1 else torch.zeros_like(samples[0]))
+        finally:
+            self.train(was_training)
+        return torch.cat(means), torch.cat(stds)
+
+    @torch.no_grad()
+    def predict_raw(self, cond: torch.Tensor, n_samples: int | None = None,
+                    generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and spread of the wrench [N, N·m] (B,H,6) for raw conditions (B,H,24) on the model's device."""
+        mean_n, std_n = self.predict_normalized(self.normalized_cond(cond), n_samples, generator)
+        mean = self.force_from_target(cond, self.target_norm.unnormalize(mean_n))
+        return mean, self.target_norm.unnormalize_std(std_n)
+
+    def set_task_loss(self, task_loss: str) -> None:
+        """Switch how k samples give L_task (``of_mean`` | ``over_samples``) without retraining. A DCM option:
+        the baseline's spread is 0, so both give the same L_task there."""
+        if task_loss not in TASK_LOSSES:
+            raise ModelInputError(f"task_loss must be one of {TASK_LOSSES}, got {task_loss!r}")
+        if hasattr(self.cfg, "task_loss"):
+            self.cfg.task_loss = task_loss
+
+    def predicted_task_loss(self, mean: Any, std: Any, F_demo: Any) -> Any:
+        """L_task (B,) [N] a prediction implies: of the mean force, or with ``task_loss=over_samples`` (a DCM
+        option) the RMS over the samples, whose spread ``std`` then counts (the baseline's is 0)."""
+        if getattr(self.cfg, "task_loss", "of_mean") == "over_samples":
+            return task_loss_over_samples(mean, std, F_demo)
+        return task_loss(mean, F_demo)
+
+    @torch.no_grad()
+    def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
+                       generator: torch.Generator | None = None) -> tuple[Any, Any]:
+        """Predict the contact wrench F_obs for raw (un-normalised) inputs.
+
+        Args:
+            x_demo, F_demo, x_attr, K: (B,H,6) or (H,6) numpy arrays or tensors in the dataset's units
+                (m/rad, N/N·m, m/rad, N/m/N·m/rad, bowl frame), at the model's control rate.
+            n_samples: samples averaged per trajectory (DCM; default ``n_samples`` of the config). The
+                baseline is deterministic and ignores it (its spread is 0).
+            generator: a torch.Generator (on the model's device) for reproducible samples.
+
+        Returns:
+            ``(mean_N, std_N)``: predicted wrench and its spread over samples, (B,H,6) [N, N·m], numpy when
+            ``x_demo`` is numpy, else tensors on the inputs' device.
+        """
+        self._require_fitted()
+        as_numpy = isinstance(x_demo, np.ndarray)
+        parts = []
+        for name, value in (("x_demo", x_demo), ("F_demo", F_demo), ("x_attr", x_attr), ("K", K)):
+            t = torch.as_tensor(np.asarray(value) if not torch.is_tensor(value) else value, dtype=torch.float32)
+            if t.shape[-1:] != (6,) or t.dim() not in (2, 3):
+                raise ModelInputError(f"predict_forces: {name} must be (B,H,6) or (H,6), got {tuple(t.shape)}")
+            parts.append(t)
+        if not bool((parts[-1] > 0).all()):
+            raise ModelInputError(f"predict_forces: K must be positive, got min {float(parts[-1].min()):.4g} N/m")
+        shapes = {tuple(p.shape) for p in parts}
+        if len(shapes) != 1:
+            raise ModelInputError(f"predict_forces: inputs differ in shape: {sorted(shapes)}")
+        single = parts[0].dim() == 2
+        out_device = parts[0].device
+        cond = torch.cat(parts, dim=-1).to(self.device)
+        if single:
+            cond = cond[None]
+        if not torch.isfinite(cond).all():
+            raise ModelInputError("predict_forces: inputs contain NaN or inf")
+        mean, std = self.predict_raw(cond, n_samples, generator)
+        if single:
+            mean, std = mean[0], std[0]
+        if as_numpy:
+            return mean.cpu().numpy(), std.cpu().numpy()
+        return mean.to(out_device), std.to(out_device)
+
+
+__all__ = ["COND_DIM", "OUT_DIM", "ForceModel"]

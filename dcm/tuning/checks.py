@@ -1,0 +1,222 @@
+"""The checks of a tune run: every setting of ``conf/tune.yaml`` before any work, then the predictor against the
+skill it is to tune, so a setting that cannot work ends in one line naming it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from dcm.cli import check_integer, check_number
+from dcm.control import TASK_LOSSES, phase_boundaries
+from dcm.control.objectives import task_window_start
+from dcm.search import SearchSpace, check_budget, make_search, space_from_settings
+
+SAMPLERS = ("ddpm", "ddim")
+
+
+class TuneConfigError(ValueError):
+    """A tune.py setting that cannot work; the message names the setting, its value and what is allowed."""
+
+
+
+def to_container(value: Any) -> Any:
+    """A config node as plain lists and dicts; any other value unchanged."""
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+
+
+def _integer(value: Any, key: str, minimum: int, note: str = "") -> int:
+    return check_integer(value, key, minimum, TuneConfigError, note)
+
+
+def _number(value: Any, key: str) -> float:
+    return check_number(value, key, TuneConfigError)
+
+
+def _check_search(cfg: Any, space: SearchSpace) -> None:
+    """The strategy builds, its budget covers both searches, and each search outlasts its random start-up."""
+    name, options = cfg.search.name, to_container(cfg.search.options) or {}
+    try:
+        search = make_search(name, space, 0, **options)
+    except (TypeError, ValueError) as err:
+        raise TuneConfigError(f"search={name} with options {options}: {' '.join(str(err).split())}") from None
+    startup = options.get("n_startup_trials")
+    for key in ("robot_free.n_trials", "robot_based.n_trials"):
+        n = cfg.robot_free.n_trials if key == "robot_free.n_trials" else cfg.robot_based.n_trials
+        if n == 0:
+            continue  # robot_based.n_trials = 0 skips the robot-based search
+        try:
+            check_budget(search, n)
+        except ValueError as err:
+            raise TuneConfigError(f"{key} = {n}: {' '.join(str(err).split())}") from None
+        if isinstance(startup, int) and n <= startup:
+            raise TuneConfigError(
+                f"{key} = {n} is not above search.options.n_startup_trials = {startup}: every trial would be a "
+                f"random start-up trial, not {name}; raise {key} or lower search.options.n_startup_trials"
+                + (" (robot_based.n_trials=0 skips the robot-based search)" if key.startswith("robot_based") else ""))
+
+
+def min_compliance_loss(space: SearchSpace) -> float:
+    """The lowest L_comp [kN/m] any schedule of ``space`` reaches: every translational axis at ``min_Npm``."""
+    return math.sqrt(3.0) * space.min_Npm / 1000.0
+
+
+def _check_reference_point(value: Any, space: SearchSpace) -> np.ndarray | None:
+    value = to_container(value)
+    if value is None:
+        return None
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise TuneConfigError(f"reference_point = {value!r} must be null or [L_task_N, L_comp_kNpm]")
+    task, comp = (_number(v, f"reference_point[{i}]") for i, v in enumerate(value))
+    if task <= 0:
+        raise TuneConfigError(f"reference_point = [{task:g}, {comp:g}]: nothing can dominate it: L_task >= 0 N "
+                              "for every schedule; choose an L_task above 0 (or reference_point=null)")
+    lowest = min_compliance_loss(space)
+    if comp <= lowest:
+        raise TuneConfigError(
+            f"reference_point = [{task:g}, {comp:g}]: nothing can dominate it: L_comp >= {lowest:.4g} kN/m for "
+            f"every schedule with stiffness.min_Npm = {space.min_Npm:g}; choose an L_comp above it "
+            "(or reference_point=null)")
+    return np.array([task, comp])
+
+
+@dataclass(frozen=True)
+class CheckedConfig:
+    """What :func:`check_config` parsed on the way."""
+
+    spec: Any  # dcm.sim.demos.DemoSpec of the new skill
+    domain: Any  # dcm.sim.domain.DomainSpec
+    space: SearchSpace
+    reference: np.ndarray | None  # the configured hypervolume reference point, None: automatic
+
+
+def check_config(cfg: Any) -> CheckedConfig:
+    """Check every setting of ``conf/tune.yaml`` that can be checked without the model or the simulator.
+
+    Runs before any costly work; raises :class:`TuneConfigError` (or the demo/domain spec's own ValueError)
+    with one line naming the setting.
+    """
+    from omegaconf import OmegaConf
+
+    from dcm.sim.demos import DemoSpec
+    from dcm.sim.domain import DomainSpec
+    from dcm.sim.rollout import EMBODIMENTS
+
+    if OmegaConf.is_missing(cfg, "ckpt") or cfg.ckpt in (None, ""):
+        raise TuneConfigError("ckpt is required: python tune.py ckpt=<model.ckpt | reference.json>")
+    free, robot = cfg.robot_free, cfg.robot_based
+    _integer(free.n_trials, "robot_free.n_trials", 1)
+    _integer(free.batch_size, "robot_free.batch_size", 1)
+    _integer(free.n_samples, "robot_free.n_samples", 1)
+    _integer(free.n_validate, "robot_free.n_validate", 1)
+    _integer(cfg.validation_rollouts, "validation_rollouts", 1)
+    _integer(robot.n_trials, "robot_based.n_trials", 0, " (0 skips the robot-based search)")
+    sampler = free.get("sampler")
+    if sampler is not None and sampler not in SAMPLERS:
+        raise TuneConfigError(f"robot_free.sampler = {sampler!r}; expected null (the checkpoint's), ddpm or ddim")
+    if free.get("sampling_steps") is not None:
+        _integer(free.sampling_steps, "robot_free.sampling_steps", 1, " or null")
+    if free.get("task_loss") not in (None, *TASK_LOSSES):
+        raise TuneConfigError(f"robot_free.task_loss = {free.task_loss!r}; expected null (the checkpoint's), "
+                              + " or ".join(TASK_LOSSES))
+    _integer(cfg.seed, "seed", 0)
+    _number(cfg.control_hz, "control_hz")
+    if not 1.0 <= cfg.control_hz <= 500.0:
+        raise TuneConfigError(f"control_hz = {cfg.control_hz:g} is outside [1, 500] Hz")
+    if cfg.embodiment not in EMBODIMENTS:
+        raise TuneConfigError(f"embodiment = {cfg.embodiment!r}; known: {', '.join(sorted(EMBODIMENTS))}")
+    if cfg.get("torch_threads") is not None:
+        _integer(cfg.torch_threads, "torch_threads", 1, " or null")
+    if not isinstance(cfg.get("overwrite", False), bool):
+        raise TuneConfigError(f"overwrite = {cfg.overwrite!r} must be true or false")
+    space = space_from_settings(cfg.stiffness, TuneConfigError)
+    _check_search(cfg, space)
+    reference = _check_reference_point(cfg.get("reference_point"), space)
+    domain = DomainSpec.resolve(to_container(cfg.domain))
+    if cfg.demo_file:
+        spec = DemoSpec.load(cfg.demo_file)
+    else:
+        spec = DemoSpec.from_dict(to_container(cfg.demo), where="tune.demo")
+    _number(cfg.get("task_from_s", 0.0), "task_from_s")
+    try:
+        task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, spec.horizon(cfg.control_hz))
+    except ValueError as err:
+        raise TuneConfigError(f"{err} (the demo's length)") from None
+    probe = np.random.default_rng(0).normal(size=(spec.horizon(cfg.control_hz), 6))  # stands in for the demo force
+    try:
+        phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, probe)
+    except ValueError as err:
+        raise TuneConfigError(f"stiffness.phases = {cfg.stiffness.phases!r}, stiffness.n_phases = "
+                              f"{cfg.stiffness.n_phases}: {err}") from None
+    return CheckedConfig(spec, domain, space, reference)
+
+
+def check_predictor(model: Any, cfg: Any) -> None:
+    """Refuse a predictor that cannot tune this skill: one that ranks nothing, another phase count, another
+    control rate or other input/output channels than the tuner builds."""
+    from dcm.data.schema import cond_channel_names, target_channel_names
+
+    if not getattr(model, "ranks_schedules", True):
+        raise TuneConfigError(f"ckpt={cfg.ckpt} cannot tune: it predicts F_obs = F_demo, hence L_task = 0, for "
+                              "every stiffness schedule, so it cannot rank them; use a checkpoint or a stiffness "
+                              "reference JSON (python -m dcm.models.references fit)")
+    if hasattr(model, "check_phases"):  # the stiffness reference reads K as per-phase values
+        model.check_phases(cfg.stiffness.n_phases, source="tune stiffness.n_phases")
+        model.check_window(cfg.get("task_from_s", 0.0), source=f"tune task_from_s for ckpt={cfg.ckpt}")
+    spec = getattr(model, "data_spec", None)
+    if spec is not None:
+        spec.check(cond_channel_names(), target_channel_names(), cfg.control_hz,
+                   source=f"tune.control_hz and the tuner's model inputs for ckpt={cfg.ckpt}")
+
+
+class DemoRecordingWarning(UserWarning):
+    """The new skill's demo is recorded otherwise than the predictor's training demos."""
+
+
+def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
+    """Why the skill's demo (a DemoSpec) is not recorded as the predictor's training demos were; None if it
+    is, or if the predictor does not name a dataset preset. F_demo and x_demo are model inputs, so another
+    duration or demonstrator is an input the model never saw, and its ranking can drop."""
+    from dcm.data.recording import Recording, preset_recording
+    from dcm.models.predict import trained_on
+
+    preset = trained_on(ckpt)
+    trained = preset_recording(preset)
+    if trained is None:
+        return None
+    fixes = []
+    if spec.family != "waypoints" and float(spec.duration_s) != trained.duration_s:  # a file sets its own timing
+        fixes.append(f"demo.duration_s={trained.duration_s:g}")
+    if bool(spec.lead) != trained.lead:
+        fixes.append(f"++demo.lead={str(trained.lead).lower()}")
+    grid = int(spec.bowl.hfield_res)
+    if trained.bowl_grid is not None and grid != trained.bowl_grid:
+        name = {"name": f"{spec.bowl.name}_{trained.bowl_grid}"} if spec.bowl.name else {}
+        fixes.append(bowl_override(spec.bowl, hfield_res=trained.bowl_grid, **name))
+    if trained.hover_m is not None and float(spec.hover_m) != trained.hover_m:
+        fixes.append(f"++demo.hover_m={trained.hover_m:g}")
+    if not fixes:
+        return None
+    here = Recording(float(spec.duration_s), bool(spec.lead), None if trained.bowl_grid is None else grid,
+                     None if trained.hover_m is None else float(spec.hover_m))
+    return (f"ckpt={ckpt} learned from {trained.describe()} (dataset {preset}); this skill's demo: "
+            f"{here.describe()}. To record it as the model's training demos were: {' '.join(fixes)} "
+            "(or those fields of demo_file)")
+
+
+def bowl_override(bowl: Any, **changes: Any) -> str:
+    """The command-line override that gives the skill ``bowl`` (a BowlSpec) with ``changes``: the fields that
+    differ from BowlSpec's defaults, as one inline mapping (a bowl preset name cannot take a field override)."""
+    from dcm.sim.geometry import BowlSpec
+
+    default = BowlSpec().to_dict()
+    fields = {k: v for k, v in {**bowl.to_dict(), **changes}.items() if v != default[k] or k in changes}
+    plain = lambda v: "[" + ",".join(f"{x:g}" for x in v) + "]" if isinstance(v, list) else (  # noqa: E731
+        f"{v:g}" if isinstance(v, float) else str(v))
+    return "'demo.bowl={" + ",".join(f"{k}:{plain(v)}" for k, v in fields.items()) + "}'"
+
