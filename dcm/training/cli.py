@@ -19,6 +19,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from dcm.cli import CONF_DIR, quiet_libraries
 from dcm.training.run_dir import SUMMARY_FILE
 from dcm.training.train import (USER_ERRORS, TrainConfigError, check_data_argument, check_dataset_overrides,
                                 check_resume_argument, closing_summary, resolve_resume, reuse_run, train)
@@ -34,28 +35,24 @@ class _DropNotices(logging.Filter):
 
 
 def quiet_notices() -> None:
-    """Silence the library notices a training run would otherwise print, and nothing else."""
+    """Silence the library notices a training run adds to those :func:`dcm.cli.quiet_libraries` hushes, and
+    nothing else."""
     for name in _NOTICE_LOGGERS:
         logger = logging.getLogger(name)
         if not any(isinstance(f, _DropNotices) for f in logger.filters):
             logger.addFilter(_DropNotices())
-    logging.getLogger("OpenGL.acceleratesupport").setLevel(logging.WARNING)  # "No OpenGL_accelerate module"
     # torch's pytree API as Lightning calls it; the behaviour is unchanged
     warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated")
-    # dataset generation composes its config outside this app (dcm.data.generate.compose_config)
-    warnings.filterwarnings("ignore", message=r"The version_base parameter is deprecated")
     # ForceMetricsCallback's advice on R_within; SelectionCheckpoint gives it, knowing the monitor
     warnings.filterwarnings("ignore", message=r"(val|test)/R_within is undefined")
 
 
 # An absolute path: Hydra resolves a relative one against the package when this module is imported
 # (train.py, dcm-train), where the repository's conf/ is no package.
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
-
-
 @hydra.main(config_path=str(CONF_DIR), config_name="train")
 def hydra_main(cfg: DictConfig) -> float | None:
     """One run (one job of a sweep); returns the selection score for Hydra's sweepers."""
+    quiet_libraries()  # log lines to stderr: stdout carries the closing summary
     quiet_notices()
     try:
         check_dataset_overrides(HydraConfig.get().overrides.task)
