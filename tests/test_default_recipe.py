@@ -55,3 +55,21 @@ def test_the_baseline_takes_no_dcm_only_option() -> None:
     planned = _planned(["model=baseline"])
     assert "input_scaling" not in planned["model"] and planned["model"]["normalization"] == "zscore"
     assert _planned([])["model"]["input_scaling"] == "signal"
+
+
+def test_a_run_saved_before_the_dataset_group_is_the_same_config(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """A sweep re-run over run directories saved with a `data.preset` block skips them instead of refusing
+    them as another config (the shipped card's config is such a directory's config.yaml)."""
+    from dcm.training.train import with_dataset_group
+
+    monkeypatch.chdir(tmp_path)  # data.path as the old run resolved it: the preset's own file
+    saved, _ = _shipped_config("dcm_diverse_contact.ckpt")
+    saved["data"]["path"] = str(tmp_path / "data" / "diverse_contact.h5")
+    for group, added in ADDED_SINCE.items():
+        for key, value in added.items():
+            saved[group].setdefault(key, value)
+    planned = _planned(["seed=1"])
+    old = with_added_option_defaults(with_dataset_group(saved, planned), planned)
+    assert config_diff(old, planned, ignore=("resume", "study")) == []
+    assert config_diff(old, _planned(["seed=1", "dataset=sim"]), ignore=("resume", "study"))
