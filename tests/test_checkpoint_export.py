@@ -41,7 +41,7 @@ def run_dir(tiny_checkpoint: Path, tiny_dataset_path: Path, tmp_path: Path) -> P
 
 def test_export_is_slim_predicts_the_same_and_carries_its_card(run_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "shipped" / "dcm.ckpt"
-    assert main([str(run_dir), str(out), "--name", "dcm_tiny"]) == 0
+    assert main([str(run_dir), "--out", str(out), "--name", "dcm_tiny"]) == 0
     source = run_dir / "checkpoints" / "epoch000.ckpt"
     assert out.stat().st_size < source.stat().st_size
     raw = torch.load(out, weights_only=True)

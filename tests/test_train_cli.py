@@ -40,10 +40,14 @@ def test_sweep_makes_one_run_dir_per_job(sweep: Path) -> None:
     for run in runs:
         assert list((run / "tb").glob("events.out.tfevents.*")), f"no TensorBoard events in {run}"
         assert (run / "checkpoints" / "last.ckpt").exists()
-        assert list((run / "checkpoints").glob("epoch*-R*.ckpt")), "no checkpoint selected on val/R_within"
+        assert list((run / "checkpoints").glob("epoch*-Rw*.ckpt")), "no checkpoint selected on val/R_within"
         assert (run / ".hydra" / "config.yaml").exists()
         summary = json.loads((run / "summary.json").read_text())
         assert summary["monitor"] == "val/R_within"
+        # the selected checkpoint, under the name the guides use
+        best = run / "checkpoints" / "best.ckpt"
+        assert summary["best_checkpoint"] == str(best) and summary["selected_from"].startswith("epoch")
+        assert best.read_bytes() == (run / "checkpoints" / summary["selected_from"]).read_bytes()
         assert {"test/R_within", "test/R_within_spearman", "test/R_pooled", "test/force_rmse_ratio_copy"} <= set(
             summary["test"])
 
@@ -145,21 +149,22 @@ def test_checkpoints_are_selected_and_named_on_the_monitor(tmp_path: Path) -> No
     data = ensure_dataset("tiny", tmp_path / "two_trials.h5", ["n_trials=2", "workers=1", "progress=false"])
     common = [f"data.path={data}", *[a for a in TINY if "max_epochs" not in a], "trainer.max_epochs=2"]
     within = _run([str(REPO / "train.py"), *common, f"hydra.run.dir={tmp_path / 'within'}"], cwd=tmp_path)
-    assert [p.name for p in (tmp_path / "within" / "checkpoints").iterdir()] == ["last.ckpt"]
+    assert sorted(p.name for p in (tmp_path / "within" / "checkpoints").iterdir()) == ["best.ckpt", "last.ckpt"]
     logged = within.stdout + within.stderr  # Hydra's console log goes to stdout
     assert "val/R_within is undefined" in logged and "checkpoint.monitor=val/R_pooled" in logged
     summary = json.loads((tmp_path / "within" / "summary.json").read_text())
-    assert summary["best_score"] is None and summary["best_checkpoint"].endswith("last.ckpt")
+    assert summary["best_score"] is None and summary["selected_from"] == "last.ckpt"
     assert "val/R_within was undefined at every validation" in within.stdout
 
     pooled = _run([str(REPO / "train.py"), *common, "checkpoint.monitor=val/R_pooled",
                    f"hydra.run.dir={tmp_path / 'pooled'}"], cwd=tmp_path)
     names = sorted(p.name for p in (tmp_path / "pooled" / "checkpoints").iterdir())
-    assert names[-1] == "last.ckpt" and names[:-1] and all(n.startswith("epoch") and "-Rp" in n for n in names[:-1])
+    assert names[0] == "best.ckpt" and names[-1] == "last.ckpt"
+    assert names[1:-1] and all(n.startswith("epoch") and "-Rp" in n for n in names[1:-1])
     assert not any("nan" in n for n in names) and "is undefined" not in pooled.stdout + pooled.stderr
     summary = json.loads((tmp_path / "pooled" / "summary.json").read_text())
     closing = pooled.stdout.strip().splitlines()
-    assert closing[-4] == f"selected checkpoint: {summary['best_checkpoint']}"
+    assert closing[-4] == f"selected checkpoint: {summary['best_checkpoint']} ({summary['selected_from']})"
     assert closing[-3] == f"  val/R_pooled = {summary['best_score']:.4f}" and closing[-2].startswith("  test: R_within")
 
 

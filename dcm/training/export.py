@@ -1,6 +1,6 @@
 """Export a train.py run as a slim, self-describing checkpoint to ship (its format: dcm.models.checkpoint).
 
-    python -m dcm.training.export outputs/train/<run> models/dcm_diverse_contact.ckpt
+    python -m dcm.training.export outputs/train/<run> --out my_dcm.ckpt     # or: <run> my_dcm.ckpt
 
 The export loads the run's selected checkpoint with this code (strict parameter names), so the stamped
 ``dcm_version`` is one that is known to load it, and stores a card (``dcm_card``): the dataset and its plan
@@ -24,14 +24,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("source", type=Path, help="a train.py run directory (its selected checkpoint) or a .ckpt")
-    parser.add_argument("out", type=Path, help="the slim checkpoint to write")
+    parser.add_argument("out", type=Path, nargs="?", help="the slim checkpoint to write (or --out)")
+    parser.add_argument("--out", dest="out_option", type=Path, metavar="OUT", help="the slim checkpoint to write")
     parser.add_argument("--name", help="a short name stored in the card (e.g. dcm_sim)")
     args = parser.parse_args(argv)
+    if (args.out is None) == (args.out_option is None):
+        parser.error("give the checkpoint to write once: OUT or --out OUT")
+    target = args.out or args.out_option
     try:
-        source, card = args.source, {"name": args.name or args.out.stem}
+        source, card = args.source, {"name": args.name or target.stem}
         if source.is_dir():
             card, source = {**run_card(source), **card}, run_checkpoint(source)
-        out = export_checkpoint(source, args.out, card, verify=load_model)
+        out = export_checkpoint(source, target, card, verify=load_model)
     except (ModelInputError, OSError) as err:
         print(f"error: {' '.join(str(err).split())}", file=sys.stderr)
         return 1

@@ -2,7 +2,8 @@
 
     <run_dir>/config.yaml      the resolved config that trained; resume and re-runs compare against it
     <run_dir>/summary.json     written last, so it marks a run that has ended; names the selected checkpoint
-    <run_dir>/checkpoints/     the top-k checkpoints on checkpoint.monitor, and last.ckpt (every epoch)
+    <run_dir>/checkpoints/     best.ckpt, the selected checkpoint under a name that does not change;
+                               last.ckpt (every epoch, what resume continues); the top-k on checkpoint.monitor
     <run_dir>/tb/              TensorBoard logs
     <run_dir>/.hydra/          Hydra's record of the command (overrides.yaml)
 
@@ -19,6 +20,7 @@ CONFIG_FILE = "config.yaml"
 SUMMARY_FILE = "summary.json"
 CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.ckpt"
+BEST_CHECKPOINT = "best.ckpt"
 LAST_CHECKPOINT_STEM = "last"  # Lightning's ModelCheckpoint takes the name without its suffix
 TB_DIR = "tb"
 OVERRIDES_FILE = Path(".hydra") / "overrides.yaml"
@@ -39,6 +41,22 @@ def checkpoint_dir(run_dir: Path) -> Path:
 
 def last_checkpoint(run_dir: Path) -> Path:
     return checkpoint_dir(run_dir) / LAST_CHECKPOINT
+
+
+def best_checkpoint(run_dir: Path) -> Path:
+    return checkpoint_dir(run_dir) / BEST_CHECKPOINT
+
+
+def publish_best(run_dir: Path, selected: Path) -> Path:
+    """Copy the selected checkpoint to best.ckpt (atomically), the one path the guides and tools name."""
+    import shutil
+
+    best = best_checkpoint(run_dir)
+    if Path(selected).resolve() != best.resolve():
+        tmp = best.with_name(best.name + ".tmp")
+        shutil.copyfile(selected, tmp)
+        tmp.replace(best)
+    return best
 
 
 def write_config(run_dir: Path, config: Mapping[str, Any]) -> Path:
@@ -119,7 +137,7 @@ def run_card(run_dir: Path) -> dict[str, Any]:
         "epochs": summary.get("epochs"),
         "global_step": summary.get("global_step"),
         "selected_on": {"monitor": summary.get("monitor"), "value": summary.get("best_score"),
-                        "checkpoint": Path(str(summary.get("best_checkpoint"))).name},
+                        "checkpoint": summary.get("selected_from") or Path(str(summary.get("best_checkpoint"))).name},
         "train_command": "python train.py " + " ".join(o for o in run_overrides(run_dir)
                                                        if not o.startswith("hydra.")),
         "dataset": _dataset_identity(summary.get("dataset")),
@@ -130,7 +148,7 @@ def run_card(run_dir: Path) -> dict[str, Any]:
     }
 
 
-__all__ = ["CHECKPOINT_DIR", "CONFIG_FILE", "EVALUATION_GLOB", "LAST_CHECKPOINT", "LAST_CHECKPOINT_STEM",
-           "OVERRIDES_FILE", "SUMMARY_FILE", "TB_DIR", "checkpoint_dir", "config_path", "last_checkpoint",
-           "read_config", "read_summary", "run_card", "run_checkpoint", "run_finished", "run_overrides",
-           "summary_path", "write_config", "write_summary"]
+__all__ = ["BEST_CHECKPOINT", "CHECKPOINT_DIR", "CONFIG_FILE", "EVALUATION_GLOB", "LAST_CHECKPOINT",
+           "LAST_CHECKPOINT_STEM", "OVERRIDES_FILE", "SUMMARY_FILE", "TB_DIR", "best_checkpoint", "checkpoint_dir",
+           "config_path", "last_checkpoint", "publish_best", "read_config", "read_summary", "run_card",
+           "run_checkpoint", "run_finished", "run_overrides", "summary_path", "write_config", "write_summary"]

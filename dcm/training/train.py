@@ -275,17 +275,21 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     trainer = L.Trainer(default_root_dir=str(run_dir), logger=logger, callbacks=callbacks, **trainer_kwargs)
     trainer.fit(model, datamodule=dm, ckpt_path=str(last) if resuming else None, weights_only=True)
 
-    best = checkpoint.best_model_path or (str(last) if last.exists() else "")
+    # the best on the monitor, else (a monitor undefined at every validation) the last; published as best.ckpt
+    selected = Path(checkpoint.best_model_path) if checkpoint.best_model_path else (last if last.exists() else None)
     best_score = checkpoint.best_model_score if checkpoint.best_model_path else None
+    if selected is not None and trainer.is_global_zero:
+        rd.publish_best(run_dir, selected)
     summary: dict[str, Any] = {
         "run_dir": str(run_dir), "model": model.model_kind, "stage": cfg.stage, "dataset": str(path),
         "n_train_used": len(dm.split("train")), "n_train_total": dm.n_train_total, "usage_rate": cfg.usage_rate,
         "seed": int(cfg.seed), "epochs": int(trainer.current_epoch), "global_step": int(trainer.global_step),
-        "best_checkpoint": best, "monitor": cfg.checkpoint.monitor,
+        "best_checkpoint": str(rd.best_checkpoint(run_dir)) if selected else "",
+        "selected_from": selected.name if selected else None, "monitor": cfg.checkpoint.monitor,
         "best_score": None if best_score is None else float(best_score),
     }
-    if cfg.test_after_fit and best and _has_split(path, "test"):
-        results = trainer.test(model, datamodule=dm, ckpt_path=best, verbose=False, weights_only=True)
+    if cfg.test_after_fit and selected and _has_split(path, "test"):
+        results = trainer.test(model, datamodule=dm, ckpt_path=str(selected), verbose=False, weights_only=True)
         summary["test"] = {k: float(v) for k, v in (results[0] if results else {}).items()}
     elif cfg.test_after_fit:
         log.warning("no test split in %s (or no checkpoint): skipping the test pass", path)
@@ -297,7 +301,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
 def closing_summary(summary: Mapping[str, Any]) -> str:
     """What a run ends with on stdout: the selected checkpoint, its score on the monitor, the test metrics."""
     score = summary.get("best_score")
-    lines = [f"selected checkpoint: {summary.get('best_checkpoint') or '(none)'}"]
+    source = f" ({summary['selected_from']})" if summary.get("selected_from") else ""
+    lines = [f"selected checkpoint: {summary.get('best_checkpoint') or '(none)'}{source}"]
     if isinstance(score, (int, float)) and math.isfinite(score):
         lines.append(f"  {summary.get('monitor')} = {score:.4f}")
     else:
