@@ -87,7 +87,7 @@ def dataset_path(cfg: DictConfig) -> Path:
     """The dataset file ``data.path``; the preset's own file is generated first if it does not exist yet.
 
     Only the preset's own file is ever generated: a path the user named must exist, so a typo cannot start
-    an hour of simulation into an unexpected place."""
+    a long simulation into an unexpected place."""
     if cfg.data.get("path") in (None, "???"):
         raise TrainConfigError("data.path is required (an existing file, or a dataset=<preset> to generate)")
     path = Path(to_absolute_path(str(cfg.data.path)))
@@ -117,7 +117,7 @@ def check_dataset_overrides(overrides: Sequence[str]) -> None:
 
 
 def check_data_argument(argv: Sequence[str]) -> None:
-    """Name the replacement of ``data=<preset>``, which commands recorded in older model cards still use."""
+    """Name the replacement of ``data=<preset>``, a form the train commands in model cards may record."""
     for arg in argv:
         if arg.startswith("data="):
             value = arg.split("=", 1)[1]
