@@ -126,7 +126,7 @@ def generate(cfg: Any) -> Path:
         "dataset": str(cfg.dataset.name),
         "search": settings["search"]["name"],
         "seed": int(cfg.seed),
-        "config": OmegaConf.to_yaml(cfg, resolve=True),
+        "config": config,
         "plan_fingerprint": plan,
         "n_demos_total": len(all_jobs),
         "n_trajectories_total": sum(job.n_trials for job in all_jobs),

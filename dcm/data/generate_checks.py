@@ -14,7 +14,7 @@ import numpy as np
 
 from dcm.cli import check_integer, check_number, config_diff
 from dcm.data.presets import DemoJob
-from dcm.data.schema import DatasetError, read_root_attrs
+from dcm.data.schema import DatasetError, read_config, read_root_attrs
 from dcm.search import StiffnessSearch, make_search, space_from_settings
 
 # Settings that do not change the generated arrays: ignored when comparing with an existing file or part folder.
@@ -129,15 +129,12 @@ def check_demos(jobs: Sequence[DemoJob], control_hz: float, stiffness: dict[str,
             raise GenerationError(f"stiffness.phases = {method!r}, stiffness.n_phases = {n_phases}: {err}") from None
 
 
-def _config_of(attrs_config: Any) -> dict[str, Any]:
-    """A stored generating config (YAML text in a dataset's root attrs) as a mapping; {} if unreadable."""
-    import yaml
-
+def _config_of(path: Path, attrs: dict[str, Any]) -> dict[str, Any]:
+    """A dataset's stored generating config as a mapping; {} if unreadable (it only explains a refusal)."""
     try:
-        loaded = yaml.safe_load(attrs_config) if isinstance(attrs_config, str) else attrs_config
-    except yaml.YAMLError:
+        return read_config(attrs, path)
+    except DatasetError:
         return {}
-    return loaded if isinstance(loaded, dict) else {}
 
 
 def differences(saved: dict[str, Any], current: dict[str, Any], ignore: Sequence[str] = ()) -> str:
@@ -167,7 +164,7 @@ def existing_output_is_current(out: Path, plan: str, config: dict[str, Any], n_t
             problem = "was not written by dcm.data.generate (no plan_fingerprint attribute)"
         elif attrs["plan_fingerprint"] != plan or (int(attrs.get("shard_index", 0)),
                                                    int(attrs.get("shard_count", 1))) != shard:
-            problem = f"was generated with different settings ({differences(_config_of(attrs.get('config')), config)})"
+            problem = f"was generated with different settings ({differences(_config_of(out, attrs), config)})"
         elif stored != n_trajectories:
             problem = f"holds {stored} trajectories where this configuration makes {n_trajectories}"
         elif not overwrite:

@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -294,9 +293,9 @@ def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, 
         "import_bias": "mean wrench over each episode's free_motion_s window, subtracted",
         "import_resampling": "linear interpolation onto t_k = start_s + k / control_hz; stiffness zero-order hold",
         "import_contact_threshold_N": float(contact_threshold_N),
-        "config": json.dumps({"log_dir": str(log_dir), "control_hz": control_hz, "horizon": horizon,
-                              "lowpass_hz": lowpass_hz, "lowpass_order": lowpass_order,
-                              "contact_threshold_N": contact_threshold_N}),
+        "config": {"log_dir": str(log_dir), "control_hz": control_hz, "horizon": horizon,
+                   "lowpass_hz": lowpass_hz, "lowpass_order": lowpass_order,
+                   "contact_threshold_N": contact_threshold_N},
     }
     write_dataset(out, trajectories, masks, attrs)
     return len(trajectories)

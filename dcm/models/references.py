@@ -303,12 +303,11 @@ def dataset_phases(loaded: Any, required: bool = True) -> int | None:
 
 def _phase_method(attrs: dict[str, Any]) -> str | None:
     """``stiffness.phases`` of the generating config, if the file records it (informative only)."""
-    import yaml
+    from dcm.data.schema import DatasetError, read_config
 
     try:
-        config = yaml.safe_load(attrs.get("config") or "") or {}
-        return str(config["stiffness"]["phases"])
-    except (yaml.YAMLError, KeyError, TypeError):
+        return str(read_config(attrs)["stiffness"]["phases"])
+    except (DatasetError, KeyError, TypeError):
         return None
 
 
