@@ -56,3 +56,19 @@ def test_an_existing_out_is_refused_unless_overwrite(tmp_path: Path, capsys: pyt
         import_logs(tmp_path / "logs", out)
     assert main([str(tmp_path / "logs"), "--out", str(out), "--overwrite"]) == 0
     assert len(load_dataset(out, split="train")) == 1
+
+
+def test_library_chatter_is_hushed(tmp_path: Path) -> None:
+    import logging
+
+    import numpy as np
+
+    from dcm.cli import QUIET_LOGGERS
+    from dcm.data.import_logs import main
+    from test_data_import import write_episode
+
+    write_episode(tmp_path / "logs", "episode_0", np.random.default_rng(0))
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.NOTSET)
+    assert main([str(tmp_path / "logs"), "--out", str(tmp_path / "real.h5")]) == 0
+    assert all(logging.getLogger(name).level == logging.WARNING for name in QUIET_LOGGERS)

@@ -55,7 +55,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from dcm.cli import JSONFileError, load_json
+from dcm.cli import JSONFileError, load_json, quiet_libraries
 from dcm.data.schema import DatasetError, write_dataset
 
 NOMINAL_DOWN = np.diag([1.0, -1.0, -1.0])
@@ -319,6 +319,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--lowpass-order", type=int, default=2)
     parser.add_argument("--contact-threshold-N", type=float, default=1.0)
     args = parser.parse_args(argv)
+    quiet_libraries()
     if args.out.exists() and not args.overwrite:
         print(f"error: {args.out} exists; pass --overwrite to replace it, or choose another --out", file=sys.stderr)
         return 1

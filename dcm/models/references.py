@@ -30,6 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import linalg
 
+from dcm.cli import quiet_libraries
 from dcm.control.objectives import task_loss, task_window_start
 from dcm.models.configuration import ModelInputError
 from dcm.models.metrics import within_skill_correlation
@@ -347,6 +348,7 @@ def main(argv: list[str] | None = None) -> Path:
     fit.add_argument("--task-from-s", type=float, default=0.0,
                      help="learn the L_task of the force from this time [s] on (1.0: without the approach)")
     args = parser.parse_args(argv)
+    quiet_libraries()
     try:
         model = StiffnessRegression.fit_dataset(args.dataset, args.split, args.alpha, args.n_phases,
                                                 task_from_s=args.task_from_s)
