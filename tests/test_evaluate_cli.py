@@ -7,10 +7,10 @@ import logging
 from pathlib import Path
 
 import pytest
+from test_models_synthetic import write_synthetic_dataset
 
 from dcm.cli import QUIET_LOGGERS
 from dcm.evaluate import main as evaluate_main
-from test_models_synthetic import write_synthetic_dataset
 
 
 @pytest.fixture()

@@ -39,10 +39,10 @@ def test_meta_json_must_be_an_object(tmp_path: Path) -> None:
 def test_an_existing_out_is_refused_unless_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """As dcm.data.generate: an existing file is replaced only when asked, and a refusal loses nothing."""
     import numpy as np
+    from test_data_import import write_episode
 
     from dcm.data.import_logs import main
     from dcm.data.schema import load_dataset
-    from test_data_import import write_episode
 
     write_episode(tmp_path / "logs", "episode_0", np.random.default_rng(0))
     out = tmp_path / "real.h5"
@@ -62,10 +62,10 @@ def test_library_chatter_is_hushed(tmp_path: Path) -> None:
     import logging
 
     import numpy as np
+    from test_data_import import write_episode
 
     from dcm.cli import QUIET_LOGGERS
     from dcm.data.import_logs import main
-    from test_data_import import write_episode
 
     write_episode(tmp_path / "logs", "episode_0", np.random.default_rng(0))
     for name in QUIET_LOGGERS:

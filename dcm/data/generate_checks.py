@@ -137,7 +137,7 @@ def check_waypoint_recording(job: DemoJob, dataset: dict[str, Any], waypoints: s
                               f"demo.waypoints={waypoints}, which sets its own timing ({horizon} steps at "
                               f"{control_hz:g} Hz); pass dataset.duration_s={horizon / control_hz:g} to record it "
                               "as it is")
-    grid = int(spec.bowl.hfield_res)
+    grid = spec.bowl.hfield_res
     if preset.bowl_grid is not None and grid != preset.bowl_grid:
         raise GenerationError(f"demo.bowl has a {grid} x {grid} heightfield grid, but dataset={name} records its "
                               f"demos on a {preset.bowl_grid} x {preset.bowl_grid} grid (dataset.bowl.hfield_res); "
