@@ -276,7 +276,7 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
     (default ``traj_%06d`` by position), ``failed``/``failure_reason`` and any other metadata (stored as group
     attributes, dicts/lists as JSON). Failed trials are stored but dropped from the masks. ``attrs`` must hold
     ``control_hz``; ``horizon``, ``format_version``, ``dcm_version``, ``packages``, ``channels`` and ``created``
-    are filled in.
+    are filled in; ``config`` (a mapping of settings, or YAML text) is stored through :func:`config_text`.
     Stats cover the train split (all usable trials if the file has no train split, e.g. a test-only import).
     """
     from dcm import __version__
