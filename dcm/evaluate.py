@@ -1,7 +1,8 @@
 """Score a predictor on any dataset file: ``python -m dcm.evaluate ckpt=<ckpt> dataset=<h5>``.
 
 ``ckpt`` is a DCM/Baseline checkpoint, a stiffness reference JSON (``python -m dcm.models.references fit``)
-or ``copy_demo``. Writes a JSON file with the within-skill and pooled correlations of predicted vs true
+or ``copy_demo``. Prints a table of the headline metrics on stdout and, with ``out=<file>``, writes a JSON
+file with the within-skill and pooled correlations of predicted vs true
 L_task (``R_within``, its bootstrap 90 % interval ``R_within_lo`` / ``R_within_hi``, ``R_within_spearman``,
 ``R_within_n_skills``, ``R_pooled``; ``R`` = ``R_pooled``), ``top3_regret`` (what keeping the 3 best-ranked
 schedules per skill loses: 0 the truly best, 1 a random pick),
@@ -28,7 +29,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from dcm.control.objectives import task_loss, task_window_start
-from dcm.cli import resolve_device
+from dcm.cli import quiet_libraries, resolve_device
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
@@ -171,8 +172,10 @@ def _fmt(value: Any) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """CLI: ``key=value`` arguments over conf/evaluate.yaml; writes ``out`` and returns the metrics."""
+    """CLI: ``key=value`` arguments over conf/evaluate.yaml; prints the table, writes ``out`` if given and
+    returns the metrics. Warnings go to stderr."""
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    quiet_libraries()
     args = sys.argv[1:] if argv is None else argv
     if any(a in ("-h", "--help") for a in args):
         print(__doc__ + "\n" + CONFIG.read_text())
@@ -192,18 +195,21 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                           task_from_s=float(cfg.task_from_s), prior=cfg.prior, prior_weight=cfg.prior_weight)
     except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
         raise SystemExit(f"error: {err}") from None
-    out = Path(str(cfg.out))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
     rows = {result["model"]: result, **result.get("references", {})}
-    log.info("n=%d trajectories, %d skills (%s split) -> %s", result["n"], result["n_skills"], result["split"], out)
-    log.info("%-16s %9s %15s %9s %12s %9s %11s %12s", "predictor", "R_within", "90% interval", "Spearman",
-             "top3_regret", "R_pooled", "L_task_MAE", "force_RMSE")
+    row_format = "%-16s %9s %15s %9s %12s %9s %11s %12s"
+    print(f"n={result['n']} trajectories, {result['n_skills']} skills ({result['split']} split)")
+    print(row_format % ("predictor", "R_within", "90% interval", "Spearman", "top3_regret", "R_pooled",
+                        "L_task_MAE", "force_RMSE"))
     for name, row in rows.items():
         interval = f"[{_fmt(row.get('R_within_lo'))}, {_fmt(row.get('R_within_hi'))}]"
-        log.info("%-16s %9s %15s %9s %12s %9s %11s %12s", name, _fmt(row.get("R_within")), interval,
-                 _fmt(row.get("R_within_spearman")), _fmt(row.get(REGRET_KEY)), _fmt(row.get("R_pooled")),
-                 _fmt(row.get("L_task_mae_N")), _fmt(row.get("force_rmse_N")))
+        print(row_format % (name, _fmt(row.get("R_within")), interval, _fmt(row.get("R_within_spearman")),
+                            _fmt(row.get(REGRET_KEY)), _fmt(row.get("R_pooled")), _fmt(row.get("L_task_mae_N")),
+                            _fmt(row.get("force_rmse_N"))))
+    if cfg.out is not None:
+        out = Path(str(cfg.out))
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+        print(f"wrote {out}")
     return result
 
 

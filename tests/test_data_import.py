@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from dcm.data.import_logs import NOMINAL_DOWN, LogFormatError, import_logs
 from dcm.data.schema import load_dataset
+from dcm.models.references import main as references_main
 
 CONTROL_HZ = 20.0
 START_S, END_S = 0.2, 6.2  # demo reference span -> H = 121
@@ -129,3 +130,15 @@ def test_import_rejects_bad_frames(tmp_path: Path) -> None:
     write_episode(tmp_path / "mixed", "episode_1", rng, base_frame="world")
     with pytest.raises(LogFormatError, match="different base frames"):
         import_logs(tmp_path / "mixed", tmp_path / "y.h5")
+
+
+def test_a_stiffness_reference_fits_on_imported_logs(tmp_path: Path) -> None:
+    """The importer's settings are stored as every reader reads a dataset's config."""
+    rng = np.random.default_rng(3)
+    for i in range(3):
+        write_episode(tmp_path / "logs", f"episode_{i}", rng)
+    out = tmp_path / "real.h5"
+    import_logs(tmp_path / "logs", out, control_hz=CONTROL_HZ)
+    ref = references_main(["fit", "--dataset", str(out), "--out", str(tmp_path / "ref.json"), "--n-phases", "3"])
+    saved = json.loads(Path(ref).read_text())
+    assert saved["phases"]["n_phases"] == 3 and saved["phases"]["method"] is None

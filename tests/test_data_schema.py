@@ -148,3 +148,22 @@ def test_version_rate_and_split(hand_made: Path, tmp_path: Path) -> None:
         f.attrs["format_version"] = "99"
     with pytest.raises(DatasetError, match=r"future.h5.*format_version.*'99'"):
         load_dataset(future)
+
+
+def test_config_attribute_reads_back_as_written(tmp_path: Path) -> None:
+    """One writer and one reader own the ``config`` root attribute, whoever wrote the file."""
+    from dcm.data.schema import read_config, read_root_attrs
+
+    rng = np.random.default_rng(2)
+    config = {"log_dir": "/logs", "lowpass_hz": 5.0, "nested": {"a": [1, 2]}}
+    path = tmp_path / "c.h5"
+    write_dataset(path, [_trajectory(rng, 0)], {"train": ["traj_000000"]}, {"control_hz": 20.0, "config": config})
+    assert read_config(read_root_attrs(path), path) == config
+    assert read_config(load_dataset(path).attrs, path) == config
+    with h5py.File(path, "a") as f:  # a file written with the config as JSON text reads the same
+        f.attrs["config"] = '{"log_dir": "/logs", "lowpass_hz": 5.0, "nested": {"a": [1, 2]}}'
+    assert read_config(read_root_attrs(path), path) == config
+    with h5py.File(path, "a") as f:
+        f.attrs["config"] = "- not\n- a mapping\n"
+    with pytest.raises(DatasetError, match=rf"file {path}, field config: .*mapping"):
+        read_config(read_root_attrs(path), path)

@@ -278,3 +278,50 @@ def test_demo_hover_reaches_every_spec_only_when_set_and_names_the_recording() -
     for bad in ("low", -0.01, 0.5):
         with pytest.raises(PresetError, match=f"demo_hover_m = {bad!r} must be a number in"):
             plan_demos({**preset, "demo_hover_m": bad}, 0)
+
+
+# ----------------------------------------------------------------------------------------------- the waypoint demo
+def _two_second_path(tmp_path: Path) -> Path:
+    """A waypoint path of 40 steps at 20 Hz, as long as the tiny preset's demos, well inside its bowl."""
+    csv = tmp_path / "path.csv"
+    t = np.arange(40) * 0.05
+    rows = [f"{ti:g},{0.03 * np.cos(ti):.5f},{0.03 * np.sin(ti):.5f},0.008" for ti in t]
+    csv.write_text("t,x,y,press\n" + "\n".join(rows) + "\n")
+    return csv
+
+
+WAYPOINT_RUN = ["demo.n_trials=2", "workers=1", "progress=false"]
+
+
+def test_the_waypoint_demo_is_recorded_as_the_presets_demos_are(tmp_path: Path) -> None:
+    """The preset's demonstrator lead and hover reach the waypoint demo, so the file records what was recorded."""
+    from dcm.data.recording import Recording, file_recording
+    from dcm.data.schema import load_dataset
+
+    out = tmp_path / "mine.h5"
+    generate(compose_config("tiny", [f"demo.waypoints={_two_second_path(tmp_path)}", "+dataset.demo_lead=true",
+                                     "+dataset.demo_hover_m=0.0", f"out={out}", *WAYPOINT_RUN]))
+    loaded = load_dataset(out, split="train")
+    assert loaded.horizon == 40 and len(loaded) == 2
+    assert all(m["demo"].get("lead") is True and m["demo"]["hover_m"] == 0.0 for m in loaded.meta)
+    assert file_recording(out) == Recording(2.0, True, 64, 0.0)
+
+
+def test_a_waypoint_demo_recorded_otherwise_than_the_preset_says_is_refused_by_name(tmp_path: Path) -> None:
+    csv = _two_second_path(tmp_path)
+    out = tmp_path / "mine.h5"
+    example = REPO / "data" / "waypoints" / "example.csv"  # 7.95 s: 160 steps at 20 Hz
+    with pytest.raises(GenerationError) as err:
+        generate(compose_config("tiny", [f"demo.waypoints={example}", f"out={out}", *WAYPOINT_RUN]))
+    assert str(err.value) == (f"dataset.duration_s = 2 s (dataset=tiny) does not apply to demo.waypoints={example}, "
+                              "which sets its own timing (160 steps at 20 Hz); pass dataset.duration_s=8 to record "
+                              "it as it is")
+    with pytest.raises(GenerationError, match=r"^demo.bowl has a 112 x 112 heightfield grid, but dataset=tiny records "
+                                              r"its demos on a 64 x 64 grid \(dataset.bowl.hfield_res\)"):
+        generate(compose_config("tiny", [f"demo.waypoints={csv}", "demo.bowl=large", f"out={out}", *WAYPOINT_RUN]))
+    with pytest.raises(GenerationError, match=r"^demo.lead = True: the waypoint demo is recorded as the preset's "
+                                              r"demos are; set dataset.demo_lead instead"):
+        generate(compose_config("tiny", [f"demo.waypoints={csv}", "+demo.lead=true", f"out={out}", *WAYPOINT_RUN]))
+    with pytest.raises(GenerationError, match=r"^demo.color = 'red': not a setting of the waypoint demo"):
+        generate(compose_config("tiny", [f"demo.waypoints={csv}", "+demo.color=red", f"out={out}", *WAYPOINT_RUN]))
+    assert not out.exists() and not (tmp_path / "mine.h5.parts").exists()

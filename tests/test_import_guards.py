@@ -34,3 +34,41 @@ def test_meta_json_must_be_an_object(tmp_path: Path) -> None:
     (episode / "meta.json").write_text("[1, 2]")
     with pytest.raises(LogFormatError, match=r"meta.json: expected a JSON object \{...\}, got list"):
         import_logs(tmp_path / "logs", tmp_path / "real.h5")
+
+
+def test_an_existing_out_is_refused_unless_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """As dcm.data.generate: an existing file is replaced only when asked, and a refusal loses nothing."""
+    import numpy as np
+    from test_data_import import write_episode
+
+    from dcm.data.import_logs import main
+    from dcm.data.schema import load_dataset
+
+    write_episode(tmp_path / "logs", "episode_0", np.random.default_rng(0))
+    out = tmp_path / "real.h5"
+    out.write_bytes(b"an earlier import")
+    assert main([str(tmp_path / "logs"), "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err == f"error: {out} exists; pass --overwrite to replace it, or choose another --out\n"
+    assert out.read_bytes() == b"an earlier import"
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        import_logs(tmp_path / "logs", out)
+    assert main([str(tmp_path / "logs"), "--out", str(out), "--overwrite"]) == 0
+    assert len(load_dataset(out, split="train")) == 1
+
+
+def test_library_chatter_is_hushed(tmp_path: Path) -> None:
+    import logging
+
+    import numpy as np
+    from test_data_import import write_episode
+
+    from dcm.cli import QUIET_LOGGERS
+    from dcm.data.import_logs import main
+
+    write_episode(tmp_path / "logs", "episode_0", np.random.default_rng(0))
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.NOTSET)
+    assert main([str(tmp_path / "logs"), "--out", str(tmp_path / "real.h5")]) == 0
+    assert all(logging.getLogger(name).level == logging.WARNING for name in QUIET_LOGGERS)

@@ -216,3 +216,15 @@ def test_a_prior_blend_ranks_between_the_model_and_the_ridge(baseline_ckpt: Path
         evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=baseline_ckpt, prior_weight=0.5)
     with pytest.raises(ValueError, match="ckpt=copy_demo: prior applies to a DCM or baseline checkpoint"):
         with_prior(load_model("copy_demo"), ref, 0.5, "ckpt=copy_demo")
+
+
+def test_fit_hushes_library_chatter(tmp_path: Path) -> None:
+    import logging
+
+    from dcm.cli import QUIET_LOGGERS
+
+    data = write_synthetic_dataset(tmp_path / "synth.h5", n_train=6, n_valid=3, n_test=3)
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.NOTSET)
+    references_main(["fit", "--dataset", str(data), "--out", str(tmp_path / "ref.json"), "--n-phases", "2"])
+    assert all(logging.getLogger(name).level == logging.WARNING for name in QUIET_LOGGERS)

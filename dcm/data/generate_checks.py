@@ -14,13 +14,16 @@ import numpy as np
 
 from dcm.cli import check_integer, check_number, config_diff
 from dcm.data.presets import DemoJob
-from dcm.data.schema import DatasetError, read_root_attrs
+from dcm.data.schema import DatasetError, read_config, read_root_attrs
 from dcm.search import StiffnessSearch, make_search, space_from_settings
 
 # Settings that do not change the generated arrays: ignored when comparing with an existing file or part folder.
 RUN_ONLY_KEYS = ("out", "work_dir", "keep_parts", "workers", "progress", "overwrite")
 SIM_CONTROL_HZ = (1.0, 500.0)  # the range dcm.sim.rollout.Simulator accepts
 SPLIT_CHOICES = ("train", "valid", "test", "trainval")  # as in a preset's skill groups
+WAYPOINT_DEMO_KEYS = ("waypoints", "bowl", "split", "n_trials")  # conf/generate.yaml's demo group
+# demo-side names of the preset's recording settings, which the waypoint demo takes from the preset
+RECORDING_KEYS = {"duration_s": "dataset.duration_s", "lead": "dataset.demo_lead", "hover_m": "dataset.demo_hover_m"}
 
 
 class GenerationError(RuntimeError):
@@ -90,6 +93,13 @@ def check_run_settings(cfg: Any) -> None:
     fraction = cfg.dataset.get("valid_fraction", 0.1)
     if _number(fraction, "dataset.valid_fraction") < 0 or fraction >= 1:
         raise GenerationError(f"dataset.valid_fraction = {fraction!r} must be in [0, 1)")
+    for key in cfg.demo:
+        if key in RECORDING_KEYS:
+            raise GenerationError(f"demo.{key} = {cfg.demo[key]!r}: the waypoint demo is recorded as the preset's "
+                                  f"demos are; set {RECORDING_KEYS[key]} instead")
+        if key not in WAYPOINT_DEMO_KEYS:
+            raise GenerationError(f"demo.{key} = {cfg.demo[key]!r}: not a setting of the waypoint demo "
+                                  f"(it has {', '.join(WAYPOINT_DEMO_KEYS)})")
     if cfg.demo.get("waypoints"):
         _integer(cfg.demo.n_trials, "demo.n_trials", 1)
         if cfg.demo.split not in SPLIT_CHOICES:
@@ -105,6 +115,33 @@ def check_stiffness_settings(settings: dict[str, Any]) -> StiffnessSearch:
         return make_search(search["name"], space, 0, **search["options"])
     except (TypeError, ValueError) as err:
         raise GenerationError(f"search={search['name']} with options {search['options']}: {err}") from None
+
+
+def check_waypoint_recording(job: DemoJob, dataset: dict[str, Any], waypoints: str, control_hz: float) -> None:
+    """The waypoint demo is recorded as the preset says its demos are, or refused naming the setting.
+
+    The file stores the preset's recording (:mod:`dcm.data.recording`) as its own, and tools pair predictors
+    and datasets on it. Its lead and hover reach the waypoint demo (:func:`dcm.data.presets.plan_demos`), but
+    a waypoint file sets its own timing and the bowl may be another, so those must agree."""
+    from dcm.data.recording import recording
+    from dcm.sim.demos import DemoSpec, DemoSpecError
+
+    preset, name = recording(dataset), dataset.get("name")
+    try:
+        spec = DemoSpec.from_dict(job.spec, where=f"demo.waypoints={waypoints}")
+        horizon = spec.horizon(control_hz)
+    except DemoSpecError as err:
+        raise GenerationError(str(err)) from None
+    if horizon != int(round(preset.duration_s * control_hz)):
+        raise GenerationError(f"dataset.duration_s = {preset.duration_s:g} s (dataset={name}) does not apply to "
+                              f"demo.waypoints={waypoints}, which sets its own timing ({horizon} steps at "
+                              f"{control_hz:g} Hz); pass dataset.duration_s={horizon / control_hz:g} to record it "
+                              "as it is")
+    grid = spec.bowl.hfield_res
+    if preset.bowl_grid is not None and grid != preset.bowl_grid:
+        raise GenerationError(f"demo.bowl has a {grid} x {grid} heightfield grid, but dataset={name} records its "
+                              f"demos on a {preset.bowl_grid} x {preset.bowl_grid} grid (dataset.bowl.hfield_res); "
+                              f"give the waypoint demo a bowl on that grid (hfield_res: {preset.bowl_grid})")
 
 
 def check_demos(jobs: Sequence[DemoJob], control_hz: float, stiffness: dict[str, Any]) -> None:
@@ -129,15 +166,12 @@ def check_demos(jobs: Sequence[DemoJob], control_hz: float, stiffness: dict[str,
             raise GenerationError(f"stiffness.phases = {method!r}, stiffness.n_phases = {n_phases}: {err}") from None
 
 
-def _config_of(attrs_config: Any) -> dict[str, Any]:
-    """A stored generating config (YAML text in a dataset's root attrs) as a mapping; {} if unreadable."""
-    import yaml
-
+def _config_of(path: Path, attrs: dict[str, Any]) -> dict[str, Any]:
+    """A dataset's stored generating config as a mapping; {} if unreadable (it only explains a refusal)."""
     try:
-        loaded = yaml.safe_load(attrs_config) if isinstance(attrs_config, str) else attrs_config
-    except yaml.YAMLError:
+        return read_config(attrs, path)
+    except DatasetError:
         return {}
-    return loaded if isinstance(loaded, dict) else {}
 
 
 def differences(saved: dict[str, Any], current: dict[str, Any], ignore: Sequence[str] = ()) -> str:
@@ -167,7 +201,7 @@ def existing_output_is_current(out: Path, plan: str, config: dict[str, Any], n_t
             problem = "was not written by dcm.data.generate (no plan_fingerprint attribute)"
         elif attrs["plan_fingerprint"] != plan or (int(attrs.get("shard_index", 0)),
                                                    int(attrs.get("shard_count", 1))) != shard:
-            problem = f"was generated with different settings ({differences(_config_of(attrs.get('config')), config)})"
+            problem = f"was generated with different settings ({differences(_config_of(out, attrs), config)})"
         elif stored != n_trajectories:
             problem = f"holds {stored} trajectories where this configuration makes {n_trajectories}"
         elif not overwrite:

@@ -1,6 +1,6 @@
 """Import real Franka logs into the dataset format, so robot data and simulated data train the same model.
 
-    python -m dcm.data.import_logs logs/ --out data/real.h5 [--control-hz 20] [--lowpass-hz 5]
+    python -m dcm.data.import_logs logs/ --out data/real.h5 [--control-hz 20] [--lowpass-hz 5] [--overwrite]
 
 Input format: one directory per episode (one stiffness trial) under ``<log_dir>``, processed in name order::
 
@@ -49,14 +49,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import sys
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from dcm.cli import JSONFileError, load_json
+from dcm.cli import JSONFileError, load_json, quiet_libraries
 from dcm.data.schema import DatasetError, write_dataset
 
 NOMINAL_DOWN = np.diag([1.0, -1.0, -1.0])
@@ -266,9 +265,15 @@ def import_episode(episode: Path, control_hz: float, horizon: int | None, lowpas
 
 
 def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, horizon: int | None = None,
-                lowpass_hz: float = 5.0, lowpass_order: int = 2, contact_threshold_N: float = 1.0) -> int:
-    """Import every episode directory of ``log_dir`` into one dataset file; returns the trajectory count."""
+                lowpass_hz: float = 5.0, lowpass_order: int = 2, contact_threshold_N: float = 1.0,
+                overwrite: bool = False) -> int:
+    """Import every episode directory of ``log_dir`` into one dataset file; returns the trajectory count.
+
+    An existing ``out`` is replaced only with ``overwrite`` (then atomically, once the import succeeded), as
+    :mod:`dcm.data.generate` does: an earlier import may be all that is left of logs since deleted."""
     log_dir, out = Path(log_dir), Path(out)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass overwrite=True to replace it, or choose another out")
     episodes = sorted(p for p in log_dir.iterdir() if p.is_dir()) if log_dir.is_dir() else []
     if not episodes:
         raise LogFormatError(f"{log_dir}: no episode directories")
@@ -294,9 +299,9 @@ def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, 
         "import_bias": "mean wrench over each episode's free_motion_s window, subtracted",
         "import_resampling": "linear interpolation onto t_k = start_s + k / control_hz; stiffness zero-order hold",
         "import_contact_threshold_N": float(contact_threshold_N),
-        "config": json.dumps({"log_dir": str(log_dir), "control_hz": control_hz, "horizon": horizon,
-                              "lowpass_hz": lowpass_hz, "lowpass_order": lowpass_order,
-                              "contact_threshold_N": contact_threshold_N}),
+        "config": {"log_dir": str(log_dir), "control_hz": control_hz, "horizon": horizon,
+                   "lowpass_hz": lowpass_hz, "lowpass_order": lowpass_order,
+                   "contact_threshold_N": contact_threshold_N},
     }
     write_dataset(out, trajectories, masks, attrs)
     return len(trajectories)
@@ -307,15 +312,20 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      description="Import real Franka logs (format: see the module docstring).")
     parser.add_argument("log_dir", type=Path)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     parser.add_argument("--control-hz", type=float, default=20.0)
     parser.add_argument("--horizon", type=int, default=None, help="steps per trajectory (default: first episode's)")
     parser.add_argument("--lowpass-hz", type=float, default=5.0, help="wrench cut-off; 0 disables the filter")
     parser.add_argument("--lowpass-order", type=int, default=2)
     parser.add_argument("--contact-threshold-N", type=float, default=1.0)
     args = parser.parse_args(argv)
+    quiet_libraries()
+    if args.out.exists() and not args.overwrite:
+        print(f"error: {args.out} exists; pass --overwrite to replace it, or choose another --out", file=sys.stderr)
+        return 1
     try:
         n = import_logs(args.log_dir, args.out, args.control_hz, args.horizon, args.lowpass_hz, args.lowpass_order,
-                        args.contact_threshold_N)
+                        args.contact_threshold_N, overwrite=args.overwrite)
     except (LogFormatError, DatasetError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

@@ -130,8 +130,12 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
         defaults["hover_m"] = float(hover)
     groups: list[tuple[str, str, int, list[dict[str, Any]]]] = []
     if waypoints is not None and waypoints.get("waypoints"):
+        # recorded as the preset's demos are (its lead and hover); the file sets its own timing
         path = Path(str(waypoints["waypoints"])).expanduser().resolve()
-        spec = {"family": "waypoints", "waypoints": str(path), "bowl": dict(waypoints["bowl"])}
+        recorded_as = {key: defaults[key] for key in ("lead", "hover_m") if key in defaults}
+        bowl = waypoints["bowl"]  # a mapping of BowlSpec fields or a conf/bowl preset name
+        spec = {**recorded_as, "family": "waypoints", "waypoints": str(path),
+                "bowl": dict(bowl) if isinstance(bowl, Mapping) else bowl}
         n = int(n_trials_override or waypoints.get("n_trials", 20))
         groups.append(("waypoints", str(waypoints.get("split", "train")), n, [spec]))
     else:

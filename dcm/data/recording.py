@@ -44,8 +44,6 @@ def preset_recording(name: str | None) -> Recording | None:
 
 def file_recording(path: str | Path) -> Recording:
     """The recording of a generated dataset file, from the generating config in its root attributes."""
-    import h5py
-    import yaml
+    from dcm.data.schema import read_config, read_root_attrs
 
-    with h5py.File(path, "r") as f:
-        return recording(yaml.safe_load(f.attrs["config"])["dataset"])
+    return recording(read_config(read_root_attrs(path), path).get("dataset") or {})

@@ -7,7 +7,9 @@ Layout, format version "1"::
 
     /                   attrs: format_version, dcm_version, packages (JSON: the versions of python, numpy,
                                mujoco and robosuite that wrote it), control_hz, horizon, embodiment, domain,
-                               channels (JSON), config (YAML), created (ISO 8601), + any extra attrs
+                               channels (JSON), config (YAML: the settings that made the file; written and
+                               read only through :func:`config_text` / :func:`read_config`),
+                               created (ISO 8601), + any extra attrs
     /data/traj_%06d     one group per trial; attrs: demo_id, demo (JSON), bowl (JSON), embodiment,
                                domain (JSON), seed, trial, L_task, L_comp, failed, failure_reason, ...
         x_demo (H,6) f4, F_demo (H,6) f4, x_attr (H,6) f4, K (H,6) f4, x_obs (H,6) f4, F_obs (H,6) f4,
@@ -32,6 +34,7 @@ import numpy as np
 from dcm.data.atomic import atomic_path
 
 FORMAT_VERSION = "1"
+CONFIG_ATTR = "config"  # root attribute: the settings that made the file, as YAML text
 SPLITS = ("train", "valid", "test")
 
 POSE_CHANNELS = ["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"]
@@ -153,6 +156,48 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot store {type(obj).__name__} as JSON metadata")
 
 
+def config_text(config: Mapping[str, Any] | str | None, path: str | os.PathLike = "<dataset>") -> str:
+    """The ``config`` root attribute for a configuration: YAML text, ``""`` for none.
+
+    Text is kept as given (a merge keeps its shards' bytes) once it reads back as a mapping, so whatever
+    writes a file, :func:`read_config` reads it."""
+    import yaml
+
+    if config is None:
+        return ""
+    if isinstance(config, str):
+        _parse_config(config, path)
+        return config
+    if not isinstance(config, Mapping):
+        raise TypeError(f"a dataset's config must be a mapping, got {type(config).__name__}")
+    plain = json.loads(json.dumps(config, default=_json_default))  # numpy scalars, paths -> YAML-safe values
+    return yaml.safe_dump(plain, sort_keys=False, default_flow_style=False, allow_unicode=True)
+
+
+def _parse_config(text: str, path: str | os.PathLike) -> dict[str, Any]:
+    import yaml
+
+    try:
+        loaded = yaml.safe_load(text) if text.strip() else {}
+    except yaml.YAMLError as err:
+        raise DatasetError(path, f"not readable as YAML ({' '.join(str(err).split())})", field=CONFIG_ATTR) from None
+    if not isinstance(loaded, dict):
+        raise DatasetError(path, f"expected a mapping of settings, got {type(loaded).__name__}", field=CONFIG_ATTR)
+    return loaded
+
+
+def read_config(attrs: Mapping[str, Any], path: str | os.PathLike = "<dataset>") -> dict[str, Any]:
+    """The settings a file's ``config`` root attribute holds (root attributes as :func:`read_root_attrs`
+    gives them); ``{}`` when the file records none. Raises :class:`DatasetError` naming ``path`` when the
+    attribute is not a mapping."""
+    value = attrs.get(CONFIG_ATTR)
+    if value is None:
+        return {}
+    if isinstance(value, Mapping):
+        return dict(value)
+    return _parse_config(str(value), path)
+
+
 def _decode_attr(value: Any) -> Any:
     if isinstance(value, bytes):
         value = value.decode()
@@ -231,7 +276,7 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
     (default ``traj_%06d`` by position), ``failed``/``failure_reason`` and any other metadata (stored as group
     attributes, dicts/lists as JSON). Failed trials are stored but dropped from the masks. ``attrs`` must hold
     ``control_hz``; ``horizon``, ``format_version``, ``dcm_version``, ``packages``, ``channels`` and ``created``
-    are filled in.
+    are filled in; ``config`` (a mapping of settings, or YAML text) is stored through :func:`config_text`.
     Stats cover the train split (all usable trials if the file has no train split, e.g. a test-only import).
     """
     from dcm import __version__
@@ -302,7 +347,7 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
         stats_split=stats_split,
     )
     root_attrs.setdefault("created", datetime.now(timezone.utc).isoformat(timespec="seconds"))
-    root_attrs.setdefault("config", "")
+    root_attrs[CONFIG_ATTR] = config_text(root_attrs.get(CONFIG_ATTR), path)
 
     with atomic_path(path) as tmp_name:
         with h5py.File(tmp_name, "w") as f:
@@ -376,7 +421,10 @@ def _open(path: Path) -> h5py.File:
 
 
 def _check_root(path: Path, f: h5py.File) -> dict[str, Any]:
-    attrs = {k: _decode_attr(v) for k, v in f.attrs.items()}
+    attrs = {k: _decode_attr(v) for k, v in f.attrs.items() if k != CONFIG_ATTR}
+    if CONFIG_ATTR in f.attrs:  # text whatever it looks like: read_config parses it
+        raw = f.attrs[CONFIG_ATTR]
+        attrs[CONFIG_ATTR] = raw.decode() if isinstance(raw, bytes) else str(raw)
     version = attrs.get("format_version")
     if version is None:
         raise DatasetError(path, "no format_version attribute: not a dcm dataset", field="format_version")

@@ -30,6 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import linalg
 
+from dcm.cli import quiet_libraries
 from dcm.control.objectives import task_loss, task_window_start
 from dcm.models.configuration import ModelInputError
 from dcm.models.metrics import within_skill_correlation
@@ -303,12 +304,11 @@ def dataset_phases(loaded: Any, required: bool = True) -> int | None:
 
 def _phase_method(attrs: dict[str, Any]) -> str | None:
     """``stiffness.phases`` of the generating config, if the file records it (informative only)."""
-    import yaml
+    from dcm.data.schema import DatasetError, read_config
 
     try:
-        config = yaml.safe_load(attrs.get("config") or "") or {}
-        return str(config["stiffness"]["phases"])
-    except (yaml.YAMLError, KeyError, TypeError):
+        return str(read_config(attrs)["stiffness"]["phases"])
+    except (DatasetError, KeyError, TypeError):
         return None
 
 
@@ -348,6 +348,7 @@ def main(argv: list[str] | None = None) -> Path:
     fit.add_argument("--task-from-s", type=float, default=0.0,
                      help="learn the L_task of the force from this time [s] on (1.0: without the approach)")
     args = parser.parse_args(argv)
+    quiet_libraries()
     try:
         model = StiffnessRegression.fit_dataset(args.dataset, args.split, args.alpha, args.n_phases,
                                                 task_from_s=args.task_from_s)

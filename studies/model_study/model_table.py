@@ -13,7 +13,8 @@ references (copy-F_demo and the stiffness-only ridge, fitted on the dataset's tr
 same evaluations, so they sit on exactly the trajectories the models were scored on. Below the table, a Welch
 t-test over seeds compares every other model with the first (R within skill and force RMSE, per split).
 ``--per-skill`` adds one row per skill: how far its schedules' L_task differ beside how far each predictor
-errs between them, which says where a mean R within skill comes from.
+errs between them, which says where a mean R within skill comes from. ``--sampler`` and ``--sampling-steps``
+set a DCM's sampler; a one-pass model (the baseline) has none, is scored as it is, and the table says so.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from dcm.training.run_dir import run_checkpoint, run_finished
 from studies.model_study.stats import ALPHA, p_text, welch_test
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi
+EVAL_OPTIONS = ("sampler", "sampling_steps", "n_samples", "task_loss", "task_from_s")  # in cache-name order
+DCM_ONLY = {"sampler": "--sampler", "sampling_steps": "--sampling-steps"}  # option -> its flag
 COLUMNS = (("force_rmse_N", "force RMSE [N]"), ("force_rmse_ratio_copy", "÷ copy-F_demo"),
            ("R_within", "R within skill"), (INTERVAL, "R within: 90 % interval"),
            ("R_within_spearman", "Spearman within"), (REGRET_KEY, f"top-{TOP_PICKS} regret"),
@@ -58,6 +61,27 @@ def cached_eval(run_dir: Path, dataset: Path, split: str, tag: str = "", **overr
     result = evaluate(ckpt, dataset, split=split, **overrides)
     path.write_text(json.dumps(result, indent=1))
     return result
+
+
+def overrides_tag(overrides: dict[str, Any]) -> str:
+    """The cache-name tag of an evaluation's overrides ("" for a plain evaluation)."""
+    parts = [f"{key}{overrides[key]}" for key in EVAL_OPTIONS if key in overrides]
+    if "reference" in overrides:
+        parts.append("ref-" + Path(overrides["reference"]).stem)
+    if "prior" in overrides:
+        parts.append(f"prior-{Path(overrides['prior']).stem}-w{overrides['prior_weight']:g}")
+    return "_".join(parts)
+
+
+def run_overrides(run_dir: Path, overrides: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """The overrides that apply to a run's checkpoint, and the DCM-only ones left out because it is not a
+    DCM (``dcm.evaluate`` refuses a sampler for a one-pass model)."""
+    from dcm.models.checkpoint import checkpoint_kind
+
+    dropped = [key for key in DCM_ONLY if key in overrides]
+    if not dropped or checkpoint_kind(run_checkpoint(run_dir)) == "dcm":
+        return overrides, []
+    return {k: v for k, v in overrides.items() if k not in DCM_ONLY}, dropped
 
 
 def cell(values: list[float]) -> str:
@@ -143,15 +167,16 @@ def significance(rows: dict[str, dict[str, list[dict[str, Any]]]], models: list[
     return "\n".join(lines)
 
 
-def collect(runs: dict[str, list[Path]], dataset: Path, splits: list[str], tag: str = "",
-            **overrides: Any) -> dict[str, dict[str, list[dict[str, Any]]]]:
-    """Evaluations per model label and split, plus the two reference rows from the first run's evaluation."""
+def collect(runs: dict[str, list[Path]], dataset: Path, splits: list[str],
+            overrides: dict[Path, dict[str, Any]]) -> dict[str, dict[str, list[dict[str, Any]]]]:
+    """Evaluations per model label and split, plus the two reference rows from the first run's evaluation;
+    ``overrides`` holds each run's evaluation options (:func:`run_overrides`)."""
     rows: dict[str, dict[str, list[dict[str, Any]]]] = {}
     refs: dict[str, dict[str, list[dict[str, Any]]]] = {"copy-F_demo": {}, "stiffness-only ridge": {}}
     for label, dirs in runs.items():
         rows[label] = {}
         for split in splits:
-            results = [cached_eval(d, dataset, split, tag, **overrides) for d in dirs]
+            results = [cached_eval(d, dataset, split, overrides_tag(overrides[d]), **overrides[d]) for d in dirs]
             rows[label][split] = results
             if results and split not in refs["copy-F_demo"]:
                 ref = results[0].get("references", {})
@@ -201,20 +226,30 @@ def main(argv: list[str] | None = None) -> str:
         if not finished:
             parser.error(f"--runs {spec!r}: no finished run (with summary.json) matches {pattern!r}")
         runs[label] = finished
-    overrides = {k: v for k, v in (("sampler", args.sampler), ("sampling_steps", args.sampling_steps),
-                                   ("n_samples", args.n_samples), ("task_loss", args.task_loss),
-                                   ("task_from_s", args.task_from_s)) if v is not None}
-    tag = "_".join(f"{k}{v}" for k, v in overrides.items())
+    overrides = {key: getattr(args, key) for key in EVAL_OPTIONS if getattr(args, key) is not None}
     if args.reference:
         overrides["reference"] = args.reference
-        tag = "_".join(filter(None, [tag, "ref-" + Path(args.reference).stem]))
     if (args.prior is None) != (args.prior_weight is None):
         parser.error("--prior and --prior-weight go together")
     if args.prior is not None:
         overrides.update(prior=args.prior, prior_weight=args.prior_weight)
-        tag = "_".join(filter(None, [tag, f"prior-{Path(args.prior).stem}-w{args.prior_weight:g}"]))
-    rows = collect(runs, args.dataset, args.splits, tag, **overrides)
+    per_run: dict[Path, dict[str, Any]] = {}
+    notes = []
+    try:
+        for label, dirs in runs.items():
+            dropped: list[str] = []
+            for run_dir in dirs:
+                per_run[run_dir], left_out = run_overrides(run_dir, overrides)
+                dropped += [key for key in left_out if key not in dropped]
+            if dropped:
+                flags = " ".join(f"{DCM_ONLY[key]} {overrides[key]}" for key in dropped)
+                notes.append(f"{label}: a one-pass model, scored without {flags} (DCM options)")
+        rows = collect(runs, args.dataset, args.splits, per_run)
+    except (ValueError, FileNotFoundError) as err:  # ModelInputError, DatasetError, a run without checkpoint
+        raise SystemExit(f"error: {err}") from None
     text = table(rows, args.splits)
+    if notes:
+        text += "\n\n" + "\n".join(notes)
     tests = significance(rows, list(runs), args.splits)
     if tests:
         text += "\n\n" + tests

@@ -113,3 +113,25 @@ def test_per_skill_table_gives_each_skill_its_spread_and_each_predictor_its_medi
                         "| stiffness-only ridge: R | stiffness-only ridge: error sd [N] |")
     assert lines[2] == "| valid | 3 | 20 | 0.5000 | 0.0200 | 0.300 | 0.0400 | 0.600 | 0.0200 |"
     assert lines[3] == "| valid | 7 | 20 | 0.5000 | 0.0200 | 0.850 | 0.0100 | – | – |"
+
+
+def test_a_sampler_applies_to_dcm_runs_and_a_one_pass_model_says_it_ran_without(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A table of DCMs beside a baseline with --sampler ddim: the baseline has no sampler, so it is scored in
+    its one pass, under the cache name of a plain evaluation, and the table says so."""
+    from dcm.models.baseline import Baseline
+    from studies.model_study.model_table import main
+    from tests.conftest import train_tiny
+    from tests.test_models_synthetic import write_synthetic_dataset
+
+    data = write_synthetic_dataset(tmp_path / "synth.h5", n_train=6, n_valid=3, n_test=3)
+    run = tmp_path / "baseline_s0"
+    (run / "checkpoints").mkdir(parents=True)
+    train_tiny(Baseline, data, run / "checkpoints" / "last.ckpt", 2)
+    (run / "summary.json").write_text("{}")
+    out = tmp_path / "table.md"
+    text = main(["--dataset", str(data), "--splits", "test", "--sampler", "ddim", "--sampling-steps", "5",
+                 "--runs", f"baseline={run}", "--out", str(out)])
+    assert "| baseline | 1 |" in text and (run / "eval_synth_test.json").is_file()
+    note = "baseline: a one-pass model, scored without --sampler ddim --sampling-steps 5 (DCM options)"
+    assert note in text and note in out.read_text() and note in capsys.readouterr().out

@@ -1,0 +1,47 @@
+"""python -m dcm.evaluate: the table is its result (stdout), and the JSON goes only where ``out=`` says."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import pytest
+from test_models_synthetic import write_synthetic_dataset
+
+from dcm.cli import QUIET_LOGGERS
+from dcm.evaluate import main as evaluate_main
+
+
+@pytest.fixture()
+def synthetic(tmp_path: Path) -> Path:
+    return write_synthetic_dataset(tmp_path / "synth.h5", n_train=6, n_valid=3, n_test=3)
+
+
+def test_the_table_goes_to_stdout_and_no_file_is_written_unasked(
+        synthetic: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    result = evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test"])
+    captured = capsys.readouterr()
+    assert not list(work.iterdir())  # nothing written where the user happens to stand
+    lines = captured.out.splitlines()
+    assert lines[0] == "n=3 trajectories, 3 skills (test split)"
+    assert lines[1].split()[:3] == ["predictor", "R_within", "90%"]
+    assert lines[2].split()[0] == "copy_demo" and len(lines) == 3
+    assert "predictor" not in captured.err and result["n"] == 3
+
+
+def test_out_writes_the_metrics_there(synthetic: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "runs" / "metrics.json"
+    result = evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test", f"out={out}"])
+    assert json.loads(out.read_text()) == json.loads(json.dumps(result))
+    assert capsys.readouterr().out.splitlines()[-1] == f"wrote {out}"
+
+
+def test_library_chatter_is_hushed(synthetic: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.NOTSET)
+    evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test"])
+    assert all(logging.getLogger(name).level == logging.WARNING for name in QUIET_LOGGERS)
