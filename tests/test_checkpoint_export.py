@@ -13,8 +13,8 @@ import torch
 from dcm import __version__
 from dcm.models.configuration import CheckpointIncompatibleError, CheckpointVersionWarning
 from dcm.models.checkpoint import VERSION_KEY, checkpoint_card
-from dcm.models.export import main
 from dcm.models.predict import load_model
+from dcm.training.export import main
 
 
 def _inputs(seed: int = 0, horizon: int = 16) -> tuple[np.ndarray, ...]:
@@ -41,7 +41,7 @@ def run_dir(tiny_checkpoint: Path, tiny_dataset_path: Path, tmp_path: Path) -> P
 
 def test_export_is_slim_predicts_the_same_and_carries_its_card(run_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "shipped" / "dcm.ckpt"
-    assert main([str(run_dir), str(out), "--name", "dcm_tiny"]) == 0
+    assert main([str(run_dir), "--out", str(out), "--name", "dcm_tiny"]) == 0
     source = run_dir / "checkpoints" / "epoch000.ckpt"
     assert out.stat().st_size < source.stat().st_size
     raw = torch.load(out, weights_only=True)

@@ -3,7 +3,6 @@ call something (here: create a marker file), in one line naming the file, and th
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import pathlib
 import pickle
@@ -19,8 +18,6 @@ from dcm.models.configuration import CheckpointUnsafeError, ModelInputError
 from dcm.models.dcm import DCM
 from dcm.models.predict import load_model, trained_on
 from dcm.models.references import load_reference
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 class _Touch:
@@ -68,13 +65,6 @@ def crafted(request: pytest.FixtureRequest, tmp_path: Path) -> tuple[Path, Path]
     return path, marker
 
 
-def _train_module() -> Any:
-    spec = importlib.util.spec_from_file_location("train_entry", REPO / "train.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _refuses(load: Callable[[], Any], path: Path, marker: Path, error: type = ModelInputError) -> str:
     with pytest.raises(error) as err:
         load()
@@ -109,8 +99,9 @@ def test_model_loading_refuses_it(crafted: tuple[Path, Path]) -> None:
 
 def test_training_refuses_it_as_init_from_and_as_the_checkpoint_to_resume(crafted: tuple[Path, Path],
                                                                           tmp_path: Path) -> None:
+    from dcm.training import train
+
     path, marker = crafted
-    train = _train_module()
     cfg = OmegaConf.create({"init_from": str(path), "model": {"_target_": "dcm.models.dcm.DCM"}})
     _refuses(lambda: train.init_checkpoint(cfg), path, marker, CheckpointUnsafeError)
     run_dir = tmp_path / "run"
@@ -122,7 +113,7 @@ def test_training_refuses_it_as_init_from_and_as_the_checkpoint_to_resume(crafte
 
 
 def test_the_export_refuses_it(crafted: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    from dcm.models.export import main
+    from dcm.training.export import main
 
     path, marker = crafted
     out = tmp_path / "out.ckpt"

@@ -19,6 +19,7 @@ from dcm.data.schema import FIELDS, load_dataset
 from dcm.search import MOTPESearch, RandomSearch, SearchSpace
 
 REPO = Path(__file__).resolve().parents[1]
+RESEARCH_PRESETS = f"hydra.searchpath=[file://{REPO / 'studies' / 'conf'}]"  # studies/conf/dataset/
 
 
 def _all_arrays(path: Path) -> dict[str, dict[str, np.ndarray]]:
@@ -166,7 +167,7 @@ def _plan(preset: str) -> list:
 
     from dcm.data.presets import plan_demos
 
-    return plan_demos(OmegaConf.to_container(compose_config(preset).dataset, resolve=True), 0)
+    return plan_demos(OmegaConf.to_container(compose_config(preset, [RESEARCH_PRESETS]).dataset, resolve=True), 0)
 
 
 def _skill_splits(jobs: list) -> dict[tuple[str, str], int]:
@@ -268,7 +269,8 @@ def test_preset_axes_zip_and_enumerate_are_checked() -> None:
 
 
 def test_tiny_diverse_dataset(tmp_path: Path) -> None:
-    out = generate(compose_config("tiny_diverse", [f"out={tmp_path / 'td.h5'}", "workers=1", "progress=false"]))
+    out = generate(compose_config("tiny_diverse", [RESEARCH_PRESETS, f"out={tmp_path / 'td.h5'}", "workers=1",
+                                                   "progress=false"]))
     skills = {split: {m["skill"] for m in load_dataset(out, split=split).meta} for split in ("train", "valid", "test")}
     assert skills == {"train": {"spiral", "curve"}, "valid": {"spiral", "curve"}, "test": {"wavelike", "line"}}
     test = load_dataset(out, split="test")

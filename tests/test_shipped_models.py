@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dcm.data.recording import Recording, file_recording, preset_recording
+from dcm.data.recording import Recording, file_recording, preset_recording, recording
 from dcm.models.configuration import CheckpointVersionWarning
 from dcm.models.checkpoint import card_markdown, checkpoint_card
 from dcm.models.predict import load_model, predict_task_loss, trained_on
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
+RESEARCH_PRESETS = f"hydra.searchpath=[file://{MODELS.parent / 'studies' / 'conf'}]"  # studies/conf/dataset/
 SHIPPED = ("dcm_diverse_contact.ckpt", "baseline_diverse_contact.ckpt", "stiffness_ridge_diverse_contact.json",
            "dcm_realistic.ckpt")
 
@@ -41,6 +42,13 @@ def test_a_shipped_predictor_loads_silently_and_scores_schedules(name: str) -> N
     assert loss.shape == (2,) and np.isfinite(loss).all()
 
 
+def _research_recording(name: str) -> Recording:
+    """The recording of a research preset (studies/conf/dataset), which the product's conf/ does not hold."""
+    from dcm.data.generate import compose_config
+
+    return recording(compose_config(name, [RESEARCH_PRESETS]).dataset)
+
+
 def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_dataset_path: Path) -> None:
     """What `make acceptance` pairs predictors with held-out files on, and what tune.py checks the new demo
     against: the *_contact presets record 12 s demos with a leading demonstrator, the others 8 s without; the
@@ -48,7 +56,7 @@ def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_
     for name in SHIPPED:
         expected = Recording(12.0, True) if "_contact" in name else Recording(8.0, False)
         assert preset_recording(trained_on(MODELS / name)) == expected, name
-    assert preset_recording("diverse_contact_fine") == Recording(12.0, True, bowl_grid=192)
+    assert _research_recording("diverse_contact_fine") == Recording(12.0, True, bowl_grid=192)
     assert file_recording(tiny_dataset_path) == preset_recording("tiny")
     assert preset_recording("no_such_preset") is None
 
@@ -63,6 +71,6 @@ def test_make_study_tuning_records_the_skill_as_the_predictors_training_demos(pr
         pytest.skip("make is not installed")
     dry = subprocess.run(["make", "-n", "study-tuning", f"PREDICTORS={predictors}"], cwd=MODELS.parent,
                          capture_output=True, text=True, check=True).stdout
-    trained = preset_recording(predictors)
+    trained = preset_recording(predictors) or _research_recording(predictors)
     assert ("demo.duration_s=12.0 +demo.lead=true" in dry) == (trained[:2] == (12.0, True)), dry
     assert ("'demo.bowl={hfield_res:192,name:medium_192}'" in dry) == (trained.bowl_grid == 192), dry

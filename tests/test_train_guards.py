@@ -56,21 +56,58 @@ def test_a_nan_in_the_test_split_fails_before_fitting(tiny_dataset_path: Path, t
         values[7, 2] = np.nan
         force[...] = values
     run = tmp_path / "run"
-    line = _error_line(_train(["data=path", f"data.path={data}", *TINY, f"hydra.run.dir={run}"], cwd=tmp_path))
+    line = _error_line(_train([f"data.path={data}", *TINY, f"hydra.run.dir={run}"], cwd=tmp_path))
     assert line == f"error: file {data}, trajectory {name}, field F_obs: contains NaN or inf (first at index [7, 2])"
     assert not (run / "checkpoints").exists()  # nothing was fitted
     # without the test pass, the test split is not read and the run goes through
-    proc = _train(["data=path", f"data.path={data}", *TINY, "test_after_fit=false", f"hydra.run.dir={run}"],
+    proc = _train([f"data.path={data}", *TINY, "test_after_fit=false", f"hydra.run.dir={run}"],
                   cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 
+def test_a_data_preset_argument_names_its_replacement_and_creates_nothing(tmp_path: Path) -> None:
+    """Model cards of earlier runs record `data=<preset>`; the command says what to type instead."""
+    proc = _train(["model=dcm", "data=diverse_contact", "trainer.max_epochs=80"], cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stderr.strip().endswith("here: dataset=diverse_contact"), proc.stderr
+    assert list(tmp_path.iterdir()) == []
+    line = _error_line(_train(["data=path", "data.path=/abs/logs.h5"], cwd=tmp_path))
+    assert line.endswith("here: data.path=<file.h5>")
+
+
+def test_a_named_data_path_that_does_not_exist_is_an_error_never_generated(tmp_path: Path) -> None:
+    """Only a preset's own file (data/<name>.h5) is generated; a path the user named must exist."""
+    missing = tmp_path / "elsewhere" / "tiny.h5"
+    line = _error_line(_train(["dataset=tiny", f"data.path={missing}", *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
+                              cwd=tmp_path))
+    assert line.startswith(f"error: data.path={missing} does not exist")
+    assert not missing.exists() and not (tmp_path / "elsewhere").exists() and not (tmp_path / "data").exists()
+
+
+def test_a_changed_dataset_preset_field_is_refused(tmp_path: Path) -> None:
+    """A preset is used as it is: a changed field would be recorded without being what the file holds."""
+    line = _error_line(_train(["dataset=tiny", "dataset.duration_s=4.0", *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
+                              cwd=tmp_path))
+    assert line.startswith("error: dataset.duration_s=4.0: the dataset preset is used as it is")
+    assert "out=<file.h5>" in line and not (tmp_path / "data").exists()
+
+
+def test_a_checkpoint_name_on_another_metric_than_the_monitor_is_refused(tiny_dataset_path: Path,
+                                                                         tmp_path: Path) -> None:
+    """Named after a metric the run does not select on, a checkpoint can be called ...-Rwnan.ckpt."""
+    run = tmp_path / "run"
+    line = _error_line(_train([f"data.path={tiny_dataset_path}", *TINY, "checkpoint.monitor=val/R_pooled",
+                               "checkpoint.filename='epoch{epoch:03d}-Rw{val/R_within:.3f}'",
+                               f"hydra.run.dir={run}"], cwd=tmp_path))
+    assert "names val/R_within but checkpoint.monitor is val/R_pooled" in line
+    assert not (run / "checkpoints").exists()
+
+
 @pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
 def test_an_absent_gpu_fails_in_one_line(tiny_dataset_path: Path, tmp_path: Path) -> None:
-    line = _error_line(_train(["data=path", f"data.path={tiny_dataset_path}", *TINY, "trainer.accelerator=gpu",
+    line = _error_line(_train([f"data.path={tiny_dataset_path}", *TINY, "trainer.accelerator=gpu",
                                f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path))
     assert line.startswith("error: trainer.accelerator=gpu: CUDA is not available on this machine")
-    line = _error_line(_train(["data=path", f"data.path={tiny_dataset_path}", *TINY, "stage=finetune",
+    line = _error_line(_train([f"data.path={tiny_dataset_path}", *TINY, "stage=finetune",
                                f"hydra.run.dir={tmp_path / 'run2'}"], cwd=tmp_path))
     assert "needs init_from" in line  # a TrainConfigError, in one line
 

@@ -245,9 +245,19 @@ def _trained_on_preset(tmp_path: Path, preset: str) -> Path:
     return tmp_path / f"dcm_{preset}.ckpt"
 
 
-def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid(tmp_path: Path):
+def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch):
     """A predictor of the *_fine presets learned forces on a 192 x 192 bowl grid; a skill on a coarser grid
     shows facet jumps it never saw, so tune.py names the inline bowl that gives the skill's bowl that grid."""
+    import dcm.data.recording as rec
+    from dcm.data.generate import compose_config
+
+    # diverse_contact_fine is a research preset (studies/conf/dataset): its recording, as composed there
+    research = f"hydra.searchpath=[file://{REPO / 'studies' / 'conf'}]"
+    fine_recording = rec.recording(compose_config("diverse_contact_fine", [research]).dataset)
+    product = rec.preset_recording
+    monkeypatch.setattr(rec, "preset_recording",
+                        lambda name: fine_recording if name == "diverse_contact_fine" else product(name))
     spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
     coarse = DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True})
     assert coarse.bowl.hfield_res != 192

@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 
 from dcm.control.objectives import TASK_LOSSES
-from dcm.models.export import run_checkpoint, run_finished
 from dcm.models.metrics import REGRET_KEY, TOP_PICKS
+from dcm.training.run_dir import run_checkpoint, run_finished
 from studies.model_study.stats import ALPHA, p_text, welch_test
 
 INTERVAL = "R_within_interval"  # a column of two keys: R_within_lo and R_within_hi

@@ -17,7 +17,7 @@ from typing import Any
 
 import yaml
 
-from dcm.models.export import run_finished
+from dcm.training.run_dir import run_finished
 
 # overrides that never define a setting: the seed (aggregated over), the experiment itself, and paths
 NOT_SETTINGS = ("seed", "experiment", "data.path", "init_from", "resume", "trainer.max_time")

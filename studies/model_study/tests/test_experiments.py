@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from train import new_model  # train.py is a script at the repository root
+from dcm.training.train import new_model
 
 REPO = Path(__file__).resolve().parents[3]
 STUDY_CONF = REPO / "studies" / "conf"

@@ -9,10 +9,10 @@ import pytest
 from omegaconf import OmegaConf
 
 from dcm.cli import config_diff
+from dcm.training.train import with_added_option_defaults
 from studies.model_study.__main__ import main as study_main
 from studies.model_study.stats import welch_test
 from tests.test_train_cli import TINY, _run
-from train import with_added_option_defaults  # train.py is a script at the repository root
 
 REPO = Path(__file__).resolve().parents[3]
 STUDY_CONF = ["--config-dir", str(REPO / "studies" / "conf")]  # the experiments, beside the product's conf
@@ -23,7 +23,7 @@ SWEEP = ["-m", *STUDY_CONF, "+experiment=diffusion_steps", "model.diffusion_step
 @pytest.fixture(scope="module")
 def study(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
     root = tmp_path_factory.mktemp("study")
-    args = [str(REPO / "train.py"), *SWEEP, "data=path", f"data.path={tiny_dataset_path}", *TINY,
+    args = [str(REPO / "train.py"), *SWEEP, f"data.path={tiny_dataset_path}", *TINY,
             f"hydra.sweep.dir={root / 'sweep'}"]
     _run(args, cwd=root)
     return root, args
@@ -111,7 +111,7 @@ def test_usage_rate_study_fits_the_ridge_on_each_runs_own_training_subset(tiny_d
     from dcm.data.datamodule import DCMDataModule
 
     _run([str(REPO / "train.py"), "-m", *STUDY_CONF, "+experiment=usage_rate", "model=baseline", "usage_rate=0.5,1.0",
-          "seed=3", "data=path", f"data.path={tiny_dataset_path}", *TINY, f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+          "seed=3", f"data.path={tiny_dataset_path}", *TINY, f"hydra.sweep.dir={tmp_path / 'sweep'}"],
          cwd=tmp_path)
     result = json.loads(study_main([str(tmp_path / "sweep"), "--out", str(tmp_path / "report")])["json"].read_text())
     ridges = {c["values"]["usage_rate"]: c for c in result["cells"] if c["values"]["model"] == "stiffness_ridge"}

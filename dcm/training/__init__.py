@@ -1,0 +1,1 @@
+"""Training: train.py's logic and the run-directory format it owns."""
