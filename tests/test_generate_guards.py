@@ -278,3 +278,22 @@ def test_demo_hover_reaches_every_spec_only_when_set_and_names_the_recording() -
     for bad in ("low", -0.01, 0.5):
         with pytest.raises(PresetError, match=f"demo_hover_m = {bad!r} must be a number in"):
             plan_demos({**preset, "demo_hover_m": bad}, 0)
+
+
+def test_a_waypoint_demo_takes_the_preset_s_recording_or_is_refused_by_name(tmp_path: Path) -> None:
+    """A waypoint demo is recorded as the preset records its demos (leading demonstrator, approach height);
+    a demo option generation cannot apply, or a file whose length is not the preset's, is named."""
+    from dcm.data.presets import PresetError, plan_demos
+
+    csv = tmp_path / "path.csv"
+    csv.write_text("t,x,y,press\n0,0.0,0.0,0.01\n5,0.03,0.0,0.01\n11.95,0.03,0.03,0.01\n")
+    preset = {"name": "p", "duration_s": 12.0, "demo_lead": True, "demo_hover_m": 0.0, "skills": []}
+    demo = {"waypoints": str(csv), "bowl": {}, "split": "train", "n_trials": 2}
+    spec = plan_demos(preset, 0, waypoints=demo)[0].spec
+    assert spec["lead"] is True and spec["hover_m"] == 0.0
+    assert plan_demos(preset, 0, waypoints={**demo, "lead": False})[0].spec["lead"] is False
+    with pytest.raises(PresetError, match=r"demo.speed = 2: not a demo option"):
+        plan_demos(preset, 0, waypoints={**demo, "speed": 2})
+    with pytest.raises(GenerationError, match=rf"{csv} spans 11.95 s .* dataset.duration_s = 8 s"):
+        generate(compose_config("tiny", [f"out={tmp_path / 'x.h5'}", *SMALL[:2], f"demo.waypoints={csv}",
+                                         "dataset.duration_s=8.0"]))

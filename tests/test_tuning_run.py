@@ -310,3 +310,15 @@ def test_a_prior_blends_the_tuners_model_with_the_stiffness_ridge(tiny_checkpoin
         tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=0.25"), out_dir)
     with pytest.raises(TuneConfigError, match=r"prior_weight = 2 must be a number in \[0, 1\]"):
         tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=2", "overwrite=true"), out_dir)
+
+
+def test_the_recording_warning_of_a_waypoint_demo_names_the_file_s_own_duration(tmp_path: Path):
+    csv = tmp_path / "my_path.csv"
+    csv.write_text("t,x,y,press\n0,0.0,0.0,0.01\n5,0.03,0.0,0.01\n10,0.03,0.03,0.01\n")
+    spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "bowl": "medium", "lead": True})
+    message = recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", spec, control_hz=20.0)
+    assert "this skill's demo: 10 s demos with a leading demonstrator" in message
+    assert f"retime {csv} to span 12 s" in message and "demo.duration_s" not in message
+    csv.write_text("t,x,y,press\n0,0.0,0.0,0.01\n5,0.03,0.0,0.01\n11.95,0.03,0.03,0.01\n")  # 240 steps: 12 s
+    spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "bowl": "medium", "lead": True})
+    assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", spec, control_hz=20.0) is None

@@ -37,7 +37,8 @@ from typing import Any, Sequence
 
 from dcm.cli import CONF_DIR, quiet_libraries
 from dcm.data.generate_checks import (GenerationError, build_settings, check_demos, check_embodiment,
-                                      check_run_settings, check_stiffness_settings, existing_output_is_current)
+                                      check_run_settings, check_stiffness_settings, check_waypoint_duration,
+                                      existing_output_is_current)
 from dcm.data.generate_workers import (claim_work_dir, finished_jobs, job_fingerprints, mark_work_dir,
                                        part_files_in, release_work_dir, run_jobs)
 from dcm.data.merge import MergeError, assemble, part_path
@@ -90,6 +91,7 @@ def generate(cfg: Any) -> Path:
     if not jobs:
         raise GenerationError(f"shard {shard_index} of {shard_count} holds no demos (the plan has {len(all_jobs)})")
     check_demos(jobs, settings["control_hz"], settings["stiffness"])
+    check_waypoint_duration(jobs, dataset_cfg.get("duration_s", 8.0), settings["control_hz"])
     try:
         check_budget(search, max(job.n_trials for job in jobs))
     except ValueError as err:

@@ -129,6 +129,22 @@ def check_demos(jobs: Sequence[DemoJob], control_hz: float, stiffness: dict[str,
             raise GenerationError(f"stiffness.phases = {method!r}, stiffness.n_phases = {n_phases}: {err}") from None
 
 
+def check_waypoint_duration(jobs: Sequence[DemoJob], duration_s: float, control_hz: float) -> None:
+    """A waypoint demo is as long as the dataset says its demos are: the file's root attributes record the
+    preset's ``duration_s``, and a file sets its own timing, so a file of another length is refused."""
+    from dcm.sim.demos import DemoSpec
+
+    expected = int(round(float(duration_s) * control_hz))
+    for job in jobs:
+        spec = DemoSpec.from_dict(job.spec, where=f"demo {job.index} ({job.skill})")
+        if spec.family == "waypoints" and (steps := spec.horizon(control_hz)) != expected:
+            raise GenerationError(
+                f"demo.waypoints = {spec.waypoints} spans {spec.duration_s:g} s ({steps} steps at {control_hz:g} Hz), "
+                f"but dataset.duration_s = {duration_s:g} s ({expected} steps), which the dataset records as its "
+                f"demos' duration: a waypoint file sets its own; pass dataset.duration_s={steps / control_hz:g} "
+                "or retime the file")
+
+
 def _config_of(attrs_config: Any) -> dict[str, Any]:
     """A stored generating config (YAML text in a dataset's root attrs) as a mapping; {} if unreadable."""
     import yaml

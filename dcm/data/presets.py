@@ -21,6 +21,11 @@ class PresetError(ValueError):
     """An invalid dataset preset; names the config key."""
 
 
+# The ``demo`` settings of a waypoint run (``generate.yaml``): how it runs, and the DemoSpec fields it may set.
+WAYPOINT_RUN_KEYS = {"waypoints", "bowl", "split", "n_trials"}
+WAYPOINT_SPEC_KEYS = ("family", "name", "lead", "hover_m", "approach_s", "stiffness_Npm", "duration_s", "press_m")
+
+
 @dataclass(frozen=True)
 class DemoJob:
     """One demo and its stiffness search: everything a worker needs, picklable."""
@@ -130,8 +135,16 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
         defaults["hover_m"] = float(hover)
     groups: list[tuple[str, str, int, list[dict[str, Any]]]] = []
     if waypoints is not None and waypoints.get("waypoints"):
+        unknown = sorted(set(waypoints) - WAYPOINT_RUN_KEYS - set(WAYPOINT_SPEC_KEYS))
+        if unknown:
+            raise PresetError(f"demo.{unknown[0]} = {waypoints[unknown[0]]!r}: not a demo option of a waypoint run; "
+                              f"known: {sorted(WAYPOINT_RUN_KEYS | set(WAYPOINT_SPEC_KEYS))}")
         path = Path(str(waypoints["waypoints"])).expanduser().resolve()
-        spec = {"family": "waypoints", "waypoints": str(path), "bowl": dict(waypoints["bowl"])}
+        # Recorded as the preset records its demos; the run's own demo fields win. DemoSpec refuses the fields a
+        # waypoint file sets itself (duration_s other than its span, press_m, another family).
+        spec = {"family": "waypoints", "waypoints": str(path), "bowl": dict(waypoints["bowl"]),
+                **{k: v for k, v in defaults.items() if k in ("lead", "hover_m")},
+                **{k: waypoints[k] for k in WAYPOINT_SPEC_KEYS if waypoints.get(k) is not None}}
         n = int(n_trials_override or waypoints.get("n_trials", 20))
         groups.append(("waypoints", str(waypoints.get("split", "train")), n, [spec]))
     else:

@@ -143,11 +143,12 @@ def check_config(cfg: Any) -> CheckedConfig:
     else:
         spec = DemoSpec.from_dict(to_container(cfg.demo), where="tune.demo")
     _number(cfg.get("task_from_s", 0.0), "task_from_s")
+    horizon = spec.horizon(cfg.control_hz)  # a path leaving the bowl is named by the spec's own error
     try:
-        task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, spec.horizon(cfg.control_hz))
+        task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, horizon)
     except ValueError as err:
-        raise TuneConfigError(f"{err} (the demo's length)") from None
-    probe = np.random.default_rng(0).normal(size=(spec.horizon(cfg.control_hz), 6))  # stands in for the demo force
+        raise TuneConfigError(f"{err} (this skill's demo)") from None
+    probe = np.random.default_rng(0).normal(size=(horizon, 6))  # stands in for the demo force
     try:
         phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, probe)
     except ValueError as err:
@@ -178,10 +179,11 @@ class DemoRecordingWarning(UserWarning):
     """The new skill's demo is recorded otherwise than the predictor's training demos."""
 
 
-def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
+def recording_mismatch(ckpt: Any, spec: Any, control_hz: float = 20.0) -> str | None:
     """Why the skill's demo (a DemoSpec) is not recorded as the predictor's training demos were; None if it
     is, or if the predictor does not name a dataset preset. F_demo and x_demo are model inputs, so another
-    duration or demonstrator is an input the model never saw, and its ranking can drop."""
+    duration or demonstrator is an input the model never saw, and its ranking can drop. A waypoint file sets
+    its own duration: it matches when it gives the training demos' step count at ``control_hz``."""
     from dcm.data.recording import Recording, preset_recording
     from dcm.models.predict import trained_on
 
@@ -190,7 +192,10 @@ def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
     if trained is None:
         return None
     fixes = []
-    if spec.family != "waypoints" and float(spec.duration_s) != trained.duration_s:  # a file sets its own timing
+    if spec.family == "waypoints":
+        if spec.horizon(control_hz) != int(round(trained.duration_s * control_hz)):
+            fixes.append(f"retime {spec.waypoints} to span {trained.duration_s:g} s")
+    elif float(spec.duration_s) != trained.duration_s:
         fixes.append(f"demo.duration_s={trained.duration_s:g}")
     if bool(spec.lead) != trained.lead:
         fixes.append(f"++demo.lead={str(trained.lead).lower()}")

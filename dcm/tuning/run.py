@@ -108,7 +108,7 @@ def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
 
     model = load_model(cfg.ckpt, map_location=device)
     check_predictor(model, cfg)
-    if (mismatch := recording_mismatch(cfg.ckpt, spec)) is not None:
+    if (mismatch := recording_mismatch(cfg.ckpt, spec, cfg.control_hz)) is not None:
         warnings.warn(mismatch, DemoRecordingWarning, stacklevel=3)
     use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
     if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
