@@ -4,7 +4,8 @@
   does not have (instead of a CUDA traceback deep inside the first forward pass);
 * :func:`load_json` reads a JSON file and reports a syntax error as ``file, line L, column C: ...``;
 * :func:`config_diff` lists the settings that differ between two configurations, e.g. ``seed: 0 -> 3``;
-* :func:`quiet_libraries` keeps library chatter out of an entry point's output.
+* :func:`quiet_libraries` keeps library chatter out of an entry point's output;
+* :func:`to_run_log` copies a line that ends a run (its error) into the run directory's log file.
 """
 
 from __future__ import annotations
@@ -158,3 +159,15 @@ def quiet_libraries() -> None:
     for handler in logging.getLogger().handlers:
         if type(handler) is logging.StreamHandler and handler.stream is sys.stdout:
             handler.setStream(sys.stderr)
+
+
+def to_run_log(message: str, level: int = logging.ERROR) -> None:
+    """Write ``message`` to the run's log files only (Hydra's ``<job>.log``), not to the console.
+
+    An entry point prints its error on stderr and exits; without this the run directory it leaves behind
+    has a log that ends as if nothing went wrong.
+    """
+    record = logging.LogRecord("dcm", level, __file__, 0, message, None, None)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            handler.handle(record)

@@ -136,3 +136,15 @@ def test_waypoint_file_errors_say_what_is_wrong_without_a_misleading_suffix(tmp_
     with pytest.raises(ValueError) as err:
         check_config(_cfg("demo=waypoints", f"demo.waypoints={_waypoints(tmp_path, 10.0)}", "task_from_s=11"))
     assert "task_from_s = 11" in str(err.value) and "demo's length" not in str(err.value)
+
+
+def test_a_failed_run_s_log_holds_its_error(tmp_path: Path):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONWARNINGS"}
+    env.update(HYDRA_FULL_ERROR="0", MUJOCO_GL="egl")
+    run_dir = tmp_path / "run"
+    proc = subprocess.run([sys.executable, str(REPO / "tune.py"), "ckpt=none.ckpt", "robot_free.n_validate=0",
+                           f"hydra.run.dir={run_dir}"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
+    line = "error: robot_free.n_validate = 0 must be an integer >= 1"
+    assert proc.returncode == 1 and proc.stderr.strip() == line
+    assert line in (run_dir / "tune.log").read_text()

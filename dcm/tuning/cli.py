@@ -3,7 +3,7 @@
 See conf/tune.yaml for every option and docs/tune.md for the guide. Writes results.json, overview.png,
 pareto.png and solution_forces.png to the run directory; a killed run resumes with the same command plus
 ``hydra.run.dir=<that run directory>``. A setting that cannot work stops the run with one line on stderr
-(``error: ...``) and exit code 1.
+(``error: ...``), also written to the run directory's ``tune.log``, and exit code 1.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, quiet_libraries
+from dcm.cli import CONF_DIR, quiet_libraries, to_run_log
 
 
 # An absolute config path: a relative one would be looked up as a Python package once this is imported as a module.
@@ -25,7 +25,9 @@ def main(cfg: DictConfig) -> None:
     try:
         results = tune(cfg, Path(cfg.out_dir))
     except (ValueError, OSError) as err:  # TuneConfigError, TrialLogMismatch, ModelInputError, DemoSpecError, ...
-        raise SystemExit(f"error: {' '.join(str(err).split())}") from None
+        line = f"error: {' '.join(str(err).split())}"
+        to_run_log(line)  # the run directory's tune.log says why the run stopped
+        raise SystemExit(line) from None
     free, robot = results["robot_free"], results["robot_based"]
     print(f"robot-free: {free['n_virtual_trials']} virtual trials in {free['seconds']:.1f} s "
           f"(model {free['seconds_model']:.1f} s, optimiser {free['seconds_optimiser']:.1f} s), "
