@@ -5,7 +5,9 @@
 * :func:`load_json` reads a JSON file and reports a syntax error as ``file, line L, column C: ...``;
 * :func:`config_diff` lists the settings that differ between two configurations, e.g. ``seed: 0 -> 3``;
 * :func:`quiet_libraries` keeps library chatter out of an entry point's output;
-* :func:`to_run_log` copies a line that ends a run (its error) into the run directory's log file.
+* :func:`to_run_log` copies a line that ends a run (its error) into the run directory's log file;
+* the ``${dcm.config_groups:a,b}`` resolver lists config groups and their options for an entry's ``--help``
+  (``conf/hydra/help/``), so it shows the groups that entry composes rather than every folder of ``conf/``.
 """
 
 from __future__ import annotations
@@ -171,3 +173,18 @@ def to_run_log(message: str, level: int = logging.ERROR) -> None:
     for handler in logging.getLogger().handlers:
         if isinstance(handler, logging.FileHandler):
             handler.handle(record)
+
+
+def config_groups(*groups: str) -> str:
+    """``group: option, option`` per line for the named folders of :data:`CONF_DIR`, as Hydra's help shows them."""
+    return "\n".join(f"{group}: {', '.join(sorted(p.stem for p in (CONF_DIR / group).glob('*.yaml')))}"
+                     for group in sorted(groups))
+
+
+def _register_resolvers() -> None:
+    from omegaconf import OmegaConf
+
+    OmegaConf.register_resolver("dcm.config_groups", config_groups, replace=True)
+
+
+_register_resolvers()

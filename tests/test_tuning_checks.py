@@ -148,3 +148,21 @@ def test_a_failed_run_s_log_holds_its_error(tmp_path: Path):
     line = "error: robot_free.n_validate = 0 must be an integer >= 1"
     assert proc.returncode == 1 and proc.stderr.strip() == line
     assert line in (run_dir / "tune.log").read_text()
+
+
+def _help_groups(*command: str) -> set[str]:
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    proc = subprocess.run([sys.executable, *command, "--help"], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    section = proc.stdout.split("== Configuration groups ==")[1].split("== Config ==")[0]
+    return {line.split(":")[0] for line in section.splitlines()[1:] if ": " in line}
+
+
+@pytest.mark.parametrize("command, groups", [
+    (["tune.py"], {"demo", "domain", "search", "stiffness"}),
+    (["tune.py", "--config-name", "quickstart"], {"demo", "domain", "search", "stiffness"}),
+    (["-m", "dcm.data.generate"], {"dataset", "search", "stiffness"}),
+])
+def test_help_lists_only_the_config_groups_the_entry_uses(command, groups):
+    assert _help_groups(*command) == groups
