@@ -322,3 +322,30 @@ def test_the_recording_warning_of_a_waypoint_demo_names_the_file_s_own_duration(
     csv.write_text("t,x,y,press\n0,0.0,0.0,0.01\n5,0.03,0.0,0.01\n11.95,0.03,0.03,0.01\n")  # 240 steps: 12 s
     spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "bowl": "medium", "lead": True})
     assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", spec, control_hz=20.0) is None
+
+
+def test_the_reference_point_depends_on_the_skill_alone(tiny_checkpoint: Path, tmp_path: Path):
+    """Two seeds of one skill score their hypervolumes on one point, set by the skill (a rollout at the demo's
+    own stiffness, and the stiffest schedule), never by what either search found; a given point wins."""
+    from dcm.control import compliance_loss
+
+    demo = _short_demo(tmp_path)
+    runs = [tune(_config(tiny_checkpoint, demo, tmp_path / f"seed{seed}", 8, f"seed={seed}", "domain=realistic"),
+                 tmp_path / f"seed{seed}") for seed in (0, 1)]
+    first, second = (run["reference_point"] for run in runs)
+    assert first == second and first["source"] == "skill"
+    assert runs[0]["robot_free"]["solutions"] != runs[1]["robot_free"]["solutions"]  # the searches differed
+
+    from dcm.tuning.run import REFERENCE_COMP_FACTOR, REFERENCE_TASK_FACTOR
+
+    cfg = _config(tiny_checkpoint, demo, tmp_path / "seed0", 8, "domain=realistic")
+    simulator, recorded, skill = record_skill(cfg, check_config(cfg))
+    stiffness = np.tile(np.asarray(recorded.spec.stiffness_Npm), (1, cfg.stiffness.n_phases, 1))
+    at_demo = SimulatorObjective(simulator, recorded, skill)(stiffness)[0, 0]
+    assert first["L_task_N"] == pytest.approx(REFERENCE_TASK_FACTOR * at_demo)
+    stiffest = skill.schedules(np.full((1, cfg.stiffness.n_phases, 3), cfg.stiffness.max_Npm))
+    assert first["L_comp_kNpm"] == pytest.approx(REFERENCE_COMP_FACTOR * compliance_loss(stiffest)[0])
+
+    given = tune(_config(tiny_checkpoint, demo, tmp_path / "given", 8, "reference_point=[3.0,2.0]"),
+                 tmp_path / "given")["reference_point"]
+    assert (given["L_task_N"], given["L_comp_kNpm"], given["source"]) == (3.0, 2.0, "reference_point")

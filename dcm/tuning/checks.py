@@ -92,7 +92,7 @@ class CheckedConfig:
     spec: Any  # dcm.sim.demos.DemoSpec of the new skill
     domain: Any  # dcm.sim.domain.DomainSpec
     space: SearchSpace
-    reference: np.ndarray | None  # the configured hypervolume reference point, None: automatic
+    reference: np.ndarray | None  # the configured hypervolume reference point; None: the skill's own
 
 
 def check_config(cfg: Any) -> CheckedConfig:

@@ -28,7 +28,12 @@ def main(cfg: DictConfig) -> None:
         line = f"error: {' '.join(str(err).split())}"
         to_run_log(line)  # the run directory's tune.log says why the run stopped
         raise SystemExit(line) from None
-    free, robot = results["robot_free"], results["robot_based"]
+    free, robot, ref = results["robot_free"], results["robot_based"], results["reference_point"]
+    rule = ref.get("rule")
+    how = "given" if rule is None else (
+        f"{rule['task_factor']:g} x L_task at the demo's stiffness {rule['demo_stiffness_Npm'][0]:g} N/m, "
+        f"{rule['comp_factor']:g} x L_comp at {rule['stiffest_Npm']:g} N/m")
+    print(f"hypervolume reference point: L_task {ref['L_task_N']:.4g} N, L_comp {ref['L_comp_kNpm']:.4g} kN/m ({how})")
     print(f"robot-free: {free['n_virtual_trials']} virtual trials in {free['seconds']:.1f} s "
           f"(model {free['seconds_model']:.1f} s, optimiser {free['seconds_optimiser']:.1f} s), "
           f"{free['n_validated']} solutions validated, hypervolume {free['hypervolume']:.4g}")
