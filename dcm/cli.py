@@ -6,6 +6,8 @@
 * :func:`config_diff` lists the settings that differ between two configurations, e.g. ``seed: 0 -> 3``;
 * :func:`quiet_libraries` keeps library chatter out of an entry point's output;
 * :func:`to_run_log` copies a line that ends a run (its error) into the run directory's log file;
+* :func:`one_line_warnings` shows each warning as one ``warning: <Category>: <message>`` line on stderr, also
+  in the run's log;
 * the ``${dcm.config_groups:a,b}`` resolver lists config groups and their options for an entry's ``--help``
   (``conf/hydra/help/``), so it shows the groups that entry composes rather than every folder of ``conf/``.
 """
@@ -173,6 +175,20 @@ def to_run_log(message: str, level: int = logging.ERROR) -> None:
     for handler in logging.getLogger().handlers:
         if isinstance(handler, logging.FileHandler):
             handler.handle(record)
+
+
+def one_line_warnings() -> None:
+    """Show every warning of this process as one line on stderr (``warning: <Category>: <message>``) and in the
+    run's log files: Python's default adds the source line that raised it, which tells a user nothing."""
+    import warnings
+
+    def show(message: Any, category: type[Warning], filename: str, lineno: int, file: Any = None,
+             line: str | None = None) -> None:
+        text = f"warning: {category.__name__}: {' '.join(str(message).split())}"
+        print(text, file=sys.stderr if file is None else file)
+        to_run_log(text, logging.WARNING)
+
+    warnings.showwarning = show
 
 
 def config_groups(*groups: str) -> str:

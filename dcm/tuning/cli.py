@@ -13,13 +13,14 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, quiet_libraries, to_run_log
+from dcm.cli import CONF_DIR, one_line_warnings, quiet_libraries, to_run_log
 
 
 # An absolute config path: a relative one would be looked up as a Python package once this is imported as a module.
 @hydra.main(config_path=str(CONF_DIR), config_name="tune")
 def main(cfg: DictConfig) -> None:
     quiet_libraries()
+    one_line_warnings()
     from dcm.tuning.run import tune
 
     try:
@@ -37,6 +38,13 @@ def main(cfg: DictConfig) -> None:
     print(f"robot-free: {free['n_virtual_trials']} virtual trials in {free['seconds']:.1f} s "
           f"(model {free['seconds_model']:.1f} s, optimiser {free['seconds_optimiser']:.1f} s), "
           f"{free['n_validated']} solutions validated, hypervolume {free['hypervolume']:.4g}")
+    prediction = free["prediction"]
+    if prediction["L_task_mae_N"] is not None:
+        pairs = ", ".join(f"{p:.3g} -> {r:.3g}" for p, r in zip(prediction["predicted_L_task_N"],
+                                                               prediction["realised_L_task_N"]))
+        verdict = "exceeds" if prediction["exceeded"] else "within"
+        print(f"robot-free L_task predicted -> validated [N]: {pairs}; mean |error| {prediction['L_task_mae_N']:.3g} N, "
+              f"{verdict} {prediction['limit_N']:.3g} N ({prediction['limit_source']})")
     if robot["hypervolume"] is not None:
         print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s, "
               f"hypervolume {robot['hypervolume']:.4g}")

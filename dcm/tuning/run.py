@@ -35,8 +35,10 @@ import numpy as np
 from dcm.control import phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import make_search
-from dcm.tuning.checks import (CheckedConfig, DemoRecordingWarning, TuneConfigError, check_config, check_predictor,
-                               recording_mismatch, to_container)
+from dcm.tuning.checks import (CheckedConfig, ConditioningRangeWarning, DemoRecordingWarning, PredictionErrorWarning,
+                               TuneConfigError, check_config, check_predictor, conditioning_check,
+                               conditioning_warnings, prediction_check, prediction_limit, recording_mismatch,
+                               to_container)
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
 from dcm.tuning.pareto import hypervolume, pareto_mask
@@ -229,6 +231,18 @@ def skill_reference_point(cfg: Any, checked: CheckedConfig, recorded: tuple[Any,
                      "rollouts": int(cfg.validation_rollouts)}}
 
 
+def check_conditioning(model: Any, objective: ModelObjective, space: Any) -> dict[str, Any]:
+    """Judge the skill's model inputs against the model's training range before the search (the demo, and the
+    attractor and stiffness of the space's softest and stiffest constant schedules); warn once per channel
+    outside it (:class:`ConditioningRangeWarning`). Returns what ``results.json`` records."""
+    levels = [float(space.min_Npm), float(space.max_Npm)]
+    proposals = np.stack([np.full((space.n_phases, 3), level) for level in levels])
+    conditioning = conditioning_check(model, objective.inputs(proposals), levels)
+    for line in conditioning_warnings(conditioning):
+        warnings.warn(line, ConditioningRangeWarning, stacklevel=3)
+    return conditioning
+
+
 def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds."""
     from dcm.cli import resolve_device
@@ -274,6 +288,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
 
     model_objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), cfg.robot_free.n_samples,
                                      seed=cfg.seed)
+    conditioning = check_conditioning(model, model_objective, space)
     free_times = LoopTimes()
     free_log = search_loop(model_objective, cfg.robot_free.n_trials, cfg.robot_free.batch_size, free_path,
                            prints["robot_free"], "robot-free (model)", free_times, notes)
@@ -285,6 +300,13 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     start = time.perf_counter()
     validated = validation(free_params[chosen])
     validation_seconds = time.perf_counter() - start
+    prediction = prediction_check(free_predicted[chosen, 0], validated[:, 0],
+                                  prediction_limit(cfg.ckpt, cfg.get("prior")))
+    if prediction["exceeded"]:
+        warnings.warn(f"the model's L_task error on the validated solutions, {prediction['L_task_mae_N']:.3g} N (mean "
+                      f"|predicted - realised| over {prediction['n_solutions']}), exceeds {prediction['limit_N']:.3g} N "
+                      f"({prediction['limit_source']}): its ranking of this skill's schedules is likely off",
+                      PredictionErrorWarning, stacklevel=2)
 
     robot_based = np.zeros((0, 2))
     robot_times = LoopTimes()
@@ -310,6 +332,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
         "torch_threads": _torch_threads(),
         "skill": prints["skill"],
         "reference_point": reference_info,
+        "conditioning": conditioning,
         "robot_free": {
             "n_virtual_trials": len(free_log),
             "seconds": free_times.total,  # this invocation only: replayed trials cost no model time
@@ -319,6 +342,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
             "n_validated": len(chosen),
             "validation_rollouts": rollouts,
             "validation_seconds": validation_seconds,
+            "prediction": prediction,
             "hypervolume": hypervolume(finite(validated), reference),
             "solutions": [solution_record(free_params[i], validated[j], predicted=free_predicted[i])
                           for j, i in enumerate(chosen)],
