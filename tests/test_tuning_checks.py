@@ -144,7 +144,7 @@ def test_a_failed_run_s_log_holds_its_error(tmp_path: Path):
     run_dir = tmp_path / "run"
     proc = subprocess.run([sys.executable, str(REPO / "tune.py"), "ckpt=none.ckpt", "robot_free.n_validate=0",
                            f"hydra.run.dir={run_dir}"], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=300)
+                          timeout=300, check=False)
     line = "error: robot_free.n_validate = 0 must be an integer >= 1"
     assert proc.returncode == 1 and proc.stderr.strip() == line
     assert line in (run_dir / "tune.log").read_text()
@@ -153,7 +153,7 @@ def test_a_failed_run_s_log_holds_its_error(tmp_path: Path):
 def _help_groups(*command: str) -> set[str]:
     env = {**os.environ, "MUJOCO_GL": "egl"}
     proc = subprocess.run([sys.executable, *command, "--help"], cwd=REPO, env=env, capture_output=True, text=True,
-                          timeout=300)
+                          timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     section = proc.stdout.split("== Configuration groups ==")[1].split("== Config ==")[0]
     return {line.split(":")[0] for line in section.splitlines()[1:] if ": " in line}

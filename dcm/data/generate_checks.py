@@ -134,7 +134,7 @@ def check_waypoint_duration(jobs: Sequence[DemoJob], duration_s: float, control_
     preset's ``duration_s``, and a file sets its own timing, so a file of another length is refused."""
     from dcm.sim.demos import DemoSpec
 
-    expected = int(round(float(duration_s) * control_hz))
+    expected = round(float(duration_s) * control_hz)
     for job in jobs:
         spec = DemoSpec.from_dict(job.spec, where=f"demo {job.index} ({job.skill})")
         if spec.family == "waypoints" and (steps := spec.horizon(control_hz)) != expected:

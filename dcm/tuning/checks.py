@@ -194,7 +194,7 @@ def recording_mismatch(ckpt: Any, spec: Any, control_hz: float = 20.0) -> str | 
         return None
     fixes = []
     if spec.family == "waypoints":
-        if spec.horizon(control_hz) != int(round(trained.duration_s * control_hz)):
+        if spec.horizon(control_hz) != round(trained.duration_s * control_hz):
             fixes.append(f"retime {spec.waypoints} to span {trained.duration_s:g} s")
     elif float(spec.duration_s) != trained.duration_s:
         fixes.append(f"demo.duration_s={trained.duration_s:g}")

@@ -43,8 +43,9 @@ def main(cfg: DictConfig) -> None:
         pairs = ", ".join(f"{p:.3g} -> {r:.3g}" for p, r in zip(prediction["predicted_L_task_N"],
                                                                prediction["realised_L_task_N"]))
         verdict = "exceeds" if prediction["exceeded"] else "within"
-        print(f"robot-free L_task predicted -> validated [N]: {pairs}; mean |error| {prediction['L_task_mae_N']:.3g} N, "
-              f"{verdict} {prediction['limit_N']:.3g} N ({prediction['limit_source']})")
+        print(f"robot-free L_task predicted -> validated [N]: {pairs}; "
+              f"mean |error| {prediction['L_task_mae_N']:.3g} N, {verdict} {prediction['limit_N']:.3g} N "
+              f"({prediction['limit_source']})")
     if robot["hypervolume"] is not None:
         print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s, "
               f"hypervolume {robot['hypervolume']:.4g}")

@@ -303,10 +303,10 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     prediction = prediction_check(free_predicted[chosen, 0], validated[:, 0],
                                   prediction_limit(cfg.ckpt, cfg.get("prior")))
     if prediction["exceeded"]:
-        warnings.warn(f"the model's L_task error on the validated solutions, {prediction['L_task_mae_N']:.3g} N (mean "
-                      f"|predicted - realised| over {prediction['n_solutions']}), exceeds {prediction['limit_N']:.3g} N "
-                      f"({prediction['limit_source']}): its ranking of this skill's schedules is likely off",
-                      PredictionErrorWarning, stacklevel=2)
+        warnings.warn(f"the model's L_task error on the validated solutions, {prediction['L_task_mae_N']:.3g} N "
+                      f"(mean |predicted - realised| over {prediction['n_solutions']}), exceeds "
+                      f"{prediction['limit_N']:.3g} N ({prediction['limit_source']}): its ranking of this skill's "
+                      "schedules is likely off", PredictionErrorWarning, stacklevel=2)
 
     robot_based = np.zeros((0, 2))
     robot_times = LoopTimes()
