@@ -4,7 +4,12 @@
   does not have (instead of a CUDA traceback deep inside the first forward pass);
 * :func:`load_json` reads a JSON file and reports a syntax error as ``file, line L, column C: ...``;
 * :func:`config_diff` lists the settings that differ between two configurations, e.g. ``seed: 0 -> 3``;
-* :func:`quiet_libraries` keeps library chatter out of an entry point's output.
+* :func:`quiet_libraries` keeps library chatter out of an entry point's output;
+* :func:`to_run_log` copies a line that ends a run (its error) into the run directory's log file;
+* :func:`one_line_warnings` shows each warning as one ``warning: <Category>: <message>`` line on stderr, also
+  in the run's log;
+* the ``${dcm.config_groups:a,b}`` resolver lists config groups and their options for an entry's ``--help``
+  (``conf/hydra/help/``), so it shows the groups that entry composes rather than every folder of ``conf/``.
 """
 
 from __future__ import annotations
@@ -158,3 +163,44 @@ def quiet_libraries() -> None:
     for handler in logging.getLogger().handlers:
         if type(handler) is logging.StreamHandler and handler.stream is sys.stdout:
             handler.setStream(sys.stderr)
+
+
+def to_run_log(message: str, level: int = logging.ERROR) -> None:
+    """Write ``message`` to the run's log files only (Hydra's ``<job>.log``), not to the console.
+
+    An entry point prints its error on stderr and exits; without this the run directory it leaves behind
+    has a log that ends as if nothing went wrong.
+    """
+    record = logging.LogRecord("dcm", level, __file__, 0, message, None, None)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            handler.handle(record)
+
+
+def one_line_warnings() -> None:
+    """Show every warning of this process as one line on stderr (``warning: <Category>: <message>``) and in the
+    run's log files: Python's default adds the source line that raised it, which tells a user nothing."""
+    import warnings
+
+    def show(message: Any, category: type[Warning], filename: str, lineno: int, file: Any = None,
+             line: str | None = None) -> None:
+        text = f"warning: {category.__name__}: {' '.join(str(message).split())}"
+        print(text, file=sys.stderr if file is None else file)
+        to_run_log(text, logging.WARNING)
+
+    warnings.showwarning = show
+
+
+def config_groups(*groups: str) -> str:
+    """``group: option, option`` per line for the named folders of :data:`CONF_DIR`, as Hydra's help shows them."""
+    return "\n".join(f"{group}: {', '.join(sorted(p.stem for p in (CONF_DIR / group).glob('*.yaml')))}"
+                     for group in sorted(groups))
+
+
+def _register_resolvers() -> None:
+    from omegaconf import OmegaConf
+
+    OmegaConf.register_resolver("dcm.config_groups", config_groups, replace=True)
+
+
+_register_resolvers()

@@ -237,3 +237,48 @@ def test_leading_demonstrator_follows_the_path_closer_on_the_panda() -> None:
         demo = sim.record_demo(spec)
         trail[lead] = np.linalg.norm(demo.x_demo[30:, :2] - spec.path(20.0)[30:, :2], axis=1).mean()
     assert trail[False] > 0.015 and trail[True] < 0.3 * trail[False]
+
+
+# -- a waypoint file is a family of its own, with its own timing --------------------------------------------
+def _waypoint_file(tmp_path: Path, span_s: float = 10.0, name: str = "path.csv") -> Path:
+    path = tmp_path / name
+    path.write_text(f"t,x,y,press\n0,0.0,0.0,0.01\n{span_s / 2:g},0.03,0.0,0.01\n{span_s:g},0.03,0.03,0.01\n")
+    return path
+
+
+def test_a_waypoint_file_with_another_family_is_refused_naming_both(tmp_path: Path) -> None:
+    """`+demo.waypoints=my.csv` without `demo=waypoints` would wipe the preset's stroke, not the file."""
+    csv = _waypoint_file(tmp_path)
+    with pytest.raises(DemoSpecError) as info:
+        DemoSpec.from_dict({"family": "wavelike", "waypoints": str(csv)}, where="tune.demo")
+    message = str(info.value)
+    assert "family = 'wavelike'" in message and str(csv) in message and "family 'waypoints'" in message
+    assert "\n" not in message
+
+
+def test_a_waypoint_demo_records_the_file_s_own_duration(tmp_path: Path) -> None:
+    csv = _waypoint_file(tmp_path, 10.0)
+    spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv)})
+    assert spec.duration_s == 10.0 and spec.to_dict()["duration_s"] == 10.0  # what results.json records
+    assert spec.to_dict()["press_m"] is None  # the file's press column sets the depth
+    assert DemoSpec.from_dict(spec.to_dict()) == spec  # round trip
+    for key, value, pattern in [
+        ("duration_s", 12.0, rf"duration_s = 12 s, but the waypoint file {csv} spans 10 s"),
+        ("duration_s", 8.0, rf"duration_s = 8 s, but the waypoint file {csv} spans 10 s"),
+        ("press_m", 0.02, r"press_m = 0.02 does not apply to a waypoint file"),
+    ]:
+        with pytest.raises(DemoSpecError, match=pattern) as info:
+            DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), key: value}, where="tune.demo")
+        assert str(info.value).startswith("tune.demo: ") and "(the demo's length)" not in str(info.value)
+    assert DemoSpec(family="spiral").duration_s == 8.0 and DemoSpec(family="spiral").press_m == 0.01
+
+
+def test_a_leading_demonstrator_applies_to_a_waypoint_demo(tmp_path: Path) -> None:
+    from dcm.sim.rollout import Simulator
+
+    csv = _waypoint_file(tmp_path, 2.0)
+    plain = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "approach_s": 0.4})
+    led = DemoSpec.from_dict({**plain.to_dict(), "lead": True})
+    assert led.to_dict()["lead"] is True
+    sim = Simulator(embodiment="tool", bowl=plain.bowl, control_hz=20.0, seed=0)
+    assert not np.allclose(sim.record_demo(plain).x_demo, sim.record_demo(led).x_demo)

@@ -96,3 +96,73 @@ def test_tune_py_reports_a_bad_setting_in_one_line(tmp_path: Path):
     assert proc.stderr.strip().splitlines() == [  # no library or deprecation chatter around it
         "error: robot_based.n_trials = -1 must be an integer >= 0 (0 skips the robot-based search)"]
     assert proc.stdout == ""
+
+
+# ----------------------------------------------------------------------------------------------- the skill
+def _waypoints(tmp_path: Path, span_s: float = 10.0, last_xy: str = "0.03,0.03") -> Path:
+    path = tmp_path / "my_path.csv"
+    path.write_text(f"t,x,y,press\n0,0.0,0.0,0.01\n{span_s / 2:g},0.03,0.0,0.01\n{span_s:g},{last_xy},0.01\n")
+    return path
+
+
+def test_a_waypoint_file_without_the_waypoints_family_is_refused_naming_both(tmp_path: Path):
+    """What Hydra suggests when `demo=waypoints` is forgotten: the run would tune the wavelike stroke."""
+    csv = _waypoints(tmp_path)
+    with pytest.raises(ValueError) as err:
+        check_config(_cfg(f"+demo.waypoints={csv}"))
+    assert "family = 'wavelike'" in str(err.value) and str(csv) in str(err.value)
+
+
+def test_a_waypoint_demo_is_what_its_file_says_or_an_error_naming_the_option(tmp_path: Path):
+    csv = _waypoints(tmp_path, 10.0)
+    checked = check_config(_cfg("demo=waypoints", f"demo.waypoints={csv}", "+demo.lead=true"))
+    assert checked.spec.duration_s == 10.0 and checked.spec.lead  # recorded, and recorded as results.json says
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
+        quick = compose("quickstart", overrides=["embodiment=tool", "demo=waypoints", f"demo.waypoints={csv}"])
+    with pytest.raises(ValueError, match=rf"duration_s = 12 s, but the waypoint file {csv} spans 10 s"):
+        check_config(quick)
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
+        quick = compose("quickstart", overrides=["embodiment=tool", "demo=waypoints", f"demo.waypoints={csv}",
+                                                 "demo.duration_s=null"])
+    assert check_config(quick).spec.duration_s == 10.0
+
+
+def test_waypoint_file_errors_say_what_is_wrong_without_a_misleading_suffix(tmp_path: Path):
+    outside = _waypoints(tmp_path, 10.0, last_xy="0.5,0.0")
+    with pytest.raises(ValueError) as err:
+        check_config(_cfg("demo=waypoints", f"demo.waypoints={outside}"))
+    assert f"{outside}, row 4: (x, y) = (0.5, 0) m lies outside" in str(err.value)
+    assert "demo's length" not in str(err.value)
+    with pytest.raises(ValueError) as err:
+        check_config(_cfg("demo=waypoints", f"demo.waypoints={_waypoints(tmp_path, 10.0)}", "task_from_s=11"))
+    assert "task_from_s = 11" in str(err.value) and "demo's length" not in str(err.value)
+
+
+def test_a_failed_run_s_log_holds_its_error(tmp_path: Path):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONWARNINGS"}
+    env.update(HYDRA_FULL_ERROR="0", MUJOCO_GL="egl")
+    run_dir = tmp_path / "run"
+    proc = subprocess.run([sys.executable, str(REPO / "tune.py"), "ckpt=none.ckpt", "robot_free.n_validate=0",
+                           f"hydra.run.dir={run_dir}"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300, check=False)
+    line = "error: robot_free.n_validate = 0 must be an integer >= 1"
+    assert proc.returncode == 1 and proc.stderr.strip() == line
+    assert line in (run_dir / "tune.log").read_text()
+
+
+def _help_groups(*command: str) -> set[str]:
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    proc = subprocess.run([sys.executable, *command, "--help"], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    section = proc.stdout.split("== Configuration groups ==")[1].split("== Config ==")[0]
+    return {line.split(":")[0] for line in section.splitlines()[1:] if ": " in line}
+
+
+@pytest.mark.parametrize("command, groups", [
+    (["tune.py"], {"demo", "domain", "search", "stiffness"}),
+    (["tune.py", "--config-name", "quickstart"], {"demo", "domain", "search", "stiffness"}),
+    (["-m", "dcm.data.generate"], {"dataset", "search", "stiffness"}),
+])
+def test_help_lists_only_the_config_groups_the_entry_uses(command, groups):
+    assert _help_groups(*command) == groups

@@ -4,6 +4,7 @@ reproducibility with a seed, trial-log fingerprints and the sampler override."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -320,3 +321,139 @@ def test_a_prior_blends_the_tuners_model_with_the_stiffness_ridge(tiny_checkpoin
         tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=0.25"), out_dir)
     with pytest.raises(TuneConfigError, match=r"prior_weight = 2 must be a number in \[0, 1\]"):
         tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=2", "overwrite=true"), out_dir)
+
+
+def test_the_recording_warning_of_a_waypoint_demo_names_the_file_s_own_duration(tmp_path: Path):
+    csv = tmp_path / "my_path.csv"
+    csv.write_text("t,x,y,press\n0,0.0,0.0,0.01\n5,0.03,0.0,0.01\n10,0.03,0.03,0.01\n")
+    spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "bowl": "medium", "lead": True})
+    message = recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", spec, control_hz=20.0)
+    assert "this skill's demo: 10 s demos with a leading demonstrator" in message
+    assert f"retime {csv} to span 12 s" in message and "demo.duration_s" not in message
+    csv.write_text("t,x,y,press\n0,0.0,0.0,0.01\n5,0.03,0.0,0.01\n11.95,0.03,0.03,0.01\n")  # 240 steps: 12 s
+    spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "bowl": "medium", "lead": True})
+    assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", spec, control_hz=20.0) is None
+
+
+def test_the_reference_point_depends_on_the_skill_alone(tiny_checkpoint: Path, tmp_path: Path):
+    """Two seeds of one skill score their hypervolumes on one point, set by the skill (a rollout at the demo's
+    own stiffness, and the stiffest schedule), never by what either search found; a given point wins."""
+    from dcm.control import compliance_loss
+
+    demo = _short_demo(tmp_path)
+    runs = [tune(_config(tiny_checkpoint, demo, tmp_path / f"seed{seed}", 8, f"seed={seed}", "domain=realistic"),
+                 tmp_path / f"seed{seed}") for seed in (0, 1)]
+    first, second = (run["reference_point"] for run in runs)
+    assert first == second and first["source"] == "skill"
+    assert runs[0]["robot_free"]["solutions"] != runs[1]["robot_free"]["solutions"]  # the searches differed
+
+    from dcm.tuning.run import REFERENCE_COMP_FACTOR, REFERENCE_TASK_FACTOR
+
+    cfg = _config(tiny_checkpoint, demo, tmp_path / "seed0", 8, "domain=realistic")
+    simulator, recorded, skill = record_skill(cfg, check_config(cfg))
+    stiffness = np.tile(np.asarray(recorded.spec.stiffness_Npm), (1, cfg.stiffness.n_phases, 1))
+    at_demo = SimulatorObjective(simulator, recorded, skill)(stiffness)[0, 0]
+    assert first["L_task_N"] == pytest.approx(REFERENCE_TASK_FACTOR * at_demo)
+    stiffest = skill.schedules(np.full((1, cfg.stiffness.n_phases, 3), cfg.stiffness.max_Npm))
+    assert first["L_comp_kNpm"] == pytest.approx(REFERENCE_COMP_FACTOR * compliance_loss(stiffest)[0])
+
+    given = tune(_config(tiny_checkpoint, demo, tmp_path / "given", 8, "reference_point=[3.0,2.0]"),
+                 tmp_path / "given")["reference_point"]
+    assert (given["L_task_N"], given["L_comp_kNpm"], given["source"]) == (3.0, 2.0, "reference_point")
+
+
+def _deep_path(tmp_path: Path) -> Path:
+    """A 12 s circle pressed 0.05 m deep: a demo force far above any the shipped models trained on."""
+    t = np.arange(0.0, 12.0, 0.5)
+    angle = np.linspace(0.0, 2 * np.pi, len(t))
+    rows = "".join(f"{a:g},{0.06 * np.cos(b):.5f},{0.06 * np.sin(b):.5f},0.05\n" for a, b in zip(t, angle))
+    path = tmp_path / "deep.csv"
+    path.write_text("t,x,y,press\n" + rows)
+    return path
+
+
+def _shipped_config(tmp_path: Path, *extra: str):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
+        return compose("tune", overrides=[
+            f"ckpt={REPO / 'models/dcm_diverse_contact.ckpt'}", "embodiment=tool", f"out_dir={tmp_path / 'run'}",
+            "robot_free.n_trials=6", "robot_free.batch_size=6", "robot_free.n_validate=2", "robot_based.n_trials=0",
+            "search.options.n_startup_trials=4", "+demo.lead=true", *extra])
+
+
+def test_the_tuner_warns_where_the_skill_conditions_the_model_outside_its_training_range(tmp_path: Path):
+    from dcm.tuning.checks import ConditioningRangeWarning
+
+    cfg = _shipped_config(tmp_path, "demo=waypoints", f"demo.waypoints={_deep_path(tmp_path)}")
+    with pytest.warns(ConditioningRangeWarning) as caught:
+        results = tune(cfg, tmp_path / "run")
+    lines = [str(w.message) for w in caught if issubclass(w.category, ConditioningRangeWarning)]
+    force = next(line for line in lines if line.startswith("F_demo.Fz_N: "))
+    assert " N lies outside the training range [" in force and "x the range's half-width" in force
+    assert all("\n" not in line for line in lines)
+    conditioning = results["conditioning"]
+    assert conditioning["checked"] and not conditioning["in_range"]
+    fz = next(c for c in conditioning["outside"] if c["channel"] == "F_demo.Fz_N")
+    assert fz["value"] > 30.0 and fz["training_high"] < 20.0 and abs(fz["normalised"]) > conditioning["limit"]
+    assert json.loads((tmp_path / "run" / "results.json").read_text())["conditioning"] == conditioning
+
+
+def test_a_skill_like_the_training_demos_conditions_the_model_inside_its_range(tmp_path: Path):
+    import warnings
+
+    from dcm.tuning.checks import ConditioningRangeWarning
+
+    cfg = _shipped_config(tmp_path, f"demo_file={_short_demo(tmp_path, duration_s=12.0, approach_s=1.0, lead=True)}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConditioningRangeWarning)
+        results = tune(cfg, tmp_path / "run")
+    assert results["conditioning"]["checked"] and results["conditioning"]["in_range"]
+
+
+def test_predicted_and_realised_L_task_of_the_validated_solutions_are_reported(tiny_checkpoint: Path, tmp_path: Path,
+                                                                               monkeypatch: pytest.MonkeyPatch):
+    """After validation the run says how far the model's L_task was from the simulator's on its own picks, and
+    warns when that error exceeds the documented limit: a multiple of the error its card records on the valid
+    split, else an absolute tolerance."""
+    from dcm.tuning import checks
+
+    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    monkeypatch.setattr(checks, "PREDICTION_TOLERANCE_N", 1e-9)  # any error exceeds it
+    with pytest.warns(checks.PredictionErrorWarning, match=r"L_task error on the validated solutions"):
+        results = tune(_config(tiny_checkpoint, demo, out_dir, 8), out_dir)
+    report = results["robot_free"]["prediction"]
+    solutions = results["robot_free"]["solutions"]
+    errors = [abs(s["predicted"]["L_task_N"] - s["validated"]["L_task_N"]) for s in solutions]
+    assert report["L_task_mae_N"] == pytest.approx(np.mean(errors)) and report["n_solutions"] == len(solutions)
+    assert report["limit_source"] == "absolute tolerance" and report["exceeded"]
+
+    limit = checks.prediction_limit(REPO / "models/dcm_diverse_contact.ckpt", prior=None)
+    card = checkpoint_card(REPO / "models/dcm_diverse_contact.ckpt")["evaluations"]
+    valid = card["eval_diverse_contact_valid_ref-stiffness_ridge_diverse_contact"]["L_task_mae_N"]
+    assert limit["limit_N"] == pytest.approx(checks.PREDICTION_ERROR_FACTOR * valid)
+    assert limit["valid_L_task_mae_N"] == pytest.approx(valid) and "valid" in limit["limit_source"]
+
+
+def test_tune_py_prints_the_reference_point_and_the_prediction_error_and_warns_in_one_line(tiny_checkpoint: Path,
+                                                                                          tmp_path: Path):
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONWARNINGS"}
+    run_dir = tmp_path / "run"
+    proc = subprocess.run([sys.executable, str(REPO / "tune.py"), f"ckpt={tiny_checkpoint}",
+                           f"demo_file={_short_demo(tmp_path)}", "embodiment=tool", "robot_free.n_trials=8",
+                           "robot_free.batch_size=8", "robot_free.n_validate=2", "robot_based.n_trials=5",
+                           "search.options.n_startup_trials=4", f"hydra.run.dir={run_dir}"],
+                          cwd=REPO, env={**env, "MUJOCO_GL": "egl"}, capture_output=True, text=True, timeout=300,
+                          check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    results = json.loads((run_dir / "results.json").read_text())
+    ref, prediction = results["reference_point"], results["robot_free"]["prediction"]
+    assert f"hypervolume reference point: L_task {ref['L_task_N']:.4g} N, L_comp {ref['L_comp_kNpm']:.4g} kN/m" \
+        in proc.stdout
+    assert f"mean |error| {prediction['L_task_mae_N']:.3g} N" in proc.stdout
+    lines = [line.split("\r")[-1] for line in proc.stderr.splitlines() if line.strip()]
+    warned = [line for line in lines if line.startswith("warning: ")]
+    assert warned and all("Warning: " in line for line in warned)  # e.g. the tiny model's ConditioningRangeWarning
+    assert all(line.startswith("warning: ") or "trial" in line for line in lines), lines  # no source lines
+    assert warned[0] in (run_dir / "tune.log").read_text()

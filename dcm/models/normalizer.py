@@ -73,5 +73,12 @@ class ChannelNormalizer(nn.Module):
         """A spread in normalised units, in physical units (no offset)."""
         return std / self.scale
 
+    def value_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-channel (low, high) in input units that map to [-1, 1]: the train split's range the statistics
+        were fitted on (``zscore``: mean ± ZSCORE_SPAN std), so a caller can tell how far an input lies outside."""
+        center = self.center.detach().cpu().double().numpy()
+        half = 1.0 / self.scale.detach().cpu().double().numpy()
+        return center - half, center + half
+
     def extra_repr(self) -> str:
         return f"channels={self.n_channels}, fitted={bool(self.fitted)}"

@@ -12,6 +12,11 @@ Timing: at the simulator's control rate, ``H = round(duration_s * control_hz)`` 
 Waypoint CSV: header ``t,x,y,press``; ``t`` [s] strictly increasing, ``x, y`` [m] in the bowl frame,
 ``press`` [m] the pressing depth below the surface (negative = above it). Rows are linearly resampled to
 the control rate.
+
+A waypoint file is a family of its own: a spec is what its fields say, so a ``waypoints`` path with another
+family, or a ``duration_s`` or ``press_m`` the file does not have, is refused rather than ignored. A waypoint
+spec's ``duration_s`` is the file's span ``t_last - t_first`` (what a saved spec records); its recording
+options (``lead``, ``hover_m``, ``approach_s``, ``stiffness_Npm``, ``bowl``) apply as to any family.
 """
 
 from __future__ import annotations
@@ -31,6 +36,9 @@ FAMILIES = ("spiral", "wavelike", "line", "curve", "waypoints")
 WAYPOINT_HEADER = ("t", "x", "y", "press")
 MIN_WAYPOINT_ROWS = 2
 PRESS_RANGE_M = (-0.05, 0.05)
+DEFAULT_DURATION_S = 8.0
+DEFAULT_PRESS_M = 0.01
+DURATION_MATCH_S = 1e-6  # a waypoint spec's duration_s must be its file's span (a saved spec round-trips)
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 # Family parameters and their meaning; ``None`` defaults are resolved relative to the bowl's rim.
@@ -163,8 +171,8 @@ class DemoSpec:
 
     family: str = "spiral"
     params: dict[str, Any] = field(default_factory=dict)
-    press_m: float = 0.01
-    duration_s: float = 8.0
+    press_m: float | None = None  # None: DEFAULT_PRESS_M; a waypoint file's press column sets its own
+    duration_s: float | None = None  # None: DEFAULT_DURATION_S; a waypoint file's span sets its own
     bowl: BowlSpec = field(default_factory=BowlSpec)
     waypoints: str | None = None
     stiffness_Npm: tuple[float, float, float] = (800.0, 800.0, 800.0)
@@ -181,7 +189,37 @@ class DemoSpec:
         self.bowl = _bowl_from(self.bowl, self.source)
         self.params = dict(self.params or {})
         self.stiffness_Npm = tuple(float(v) for v in self.stiffness_Npm)  # type: ignore[assignment]
+        self._resolve_timing()
         self.validate()
+
+    def _resolve_timing(self) -> None:
+        """Fill ``duration_s`` and ``press_m``: the defaults, or for a waypoint file its own span and none."""
+        where = self.source
+        if self.family != "waypoints":
+            if self.waypoints:
+                raise DemoSpecError(
+                    f"{where}: family = {self.family!r} with waypoints = {str(self.waypoints)!r}: a waypoint file "
+                    "is wiped only by family 'waypoints' (demo=waypoints demo.waypoints=<file>); drop one of them")
+            self.duration_s = DEFAULT_DURATION_S if self.duration_s is None else self.duration_s
+            self.press_m = DEFAULT_PRESS_M if self.press_m is None else self.press_m
+            return
+        if not self.waypoints:
+            raise DemoSpecError(f"{where}: family 'waypoints' needs a 'waypoints' CSV path")
+        if self.press_m is not None:
+            raise DemoSpecError(f"{where}: press_m = {self.press_m!r} does not apply to a waypoint file, whose "
+                                f"press column sets the depth ({self.waypoints}); leave press_m out (null)")
+        table = load_waypoints_csv(self.waypoints)
+        span = float(table[-1, 0] - table[0, 0])
+        if self.duration_s is None:
+            self.duration_s = span
+        elif not isinstance(self.duration_s, (int, float)) or abs(self.duration_s - span) > DURATION_MATCH_S:
+            shown = f"{self.duration_s:g} s" if isinstance(self.duration_s, (int, float)) else repr(self.duration_s)
+            raise DemoSpecError(
+                f"{where}: duration_s = {shown}, but the waypoint file {self.waypoints} spans {span:g} s "
+                f"(t = {table[0, 0]:g} to {table[-1, 0]:g} s): a waypoint file sets its own duration; leave "
+                "duration_s out (null) or retime the file")
+        else:
+            self.duration_s = span
 
     # -- validation / io -------------------------------------------------------------------------
     def validate(self) -> None:
@@ -192,15 +230,13 @@ class DemoSpec:
         if unknown:
             raise DemoSpecError(f"{where}: unknown {self.family} parameter(s) {sorted(unknown)}; "
                                 f"known: {sorted(FAMILY_PARAMS[self.family])}")
-        if self.family == "waypoints" and not self.waypoints:
-            raise DemoSpecError(f"{where}: family 'waypoints' needs a 'waypoints' CSV path")
         if self.family == "spiral" and self.params.get("direction", "ccw") not in ("cw", "ccw"):
             raise DemoSpecError(f"{where}: spiral direction = {self.params['direction']!r}; expected 'cw' or 'ccw'")
         if self.family == "curve":
             self._check_curve_params()
         checks = {
-            "press_m": (self.press_m, *PRESS_RANGE_M),
-            "duration_s": (self.duration_s, 0.5, 120.0),
+            **({} if self.family == "waypoints" else {"press_m": (self.press_m, *PRESS_RANGE_M)}),
+            "duration_s": (self.duration_s, 0.0 if self.family == "waypoints" else 0.5, 120.0),
             "approach_s": (self.approach_s, 0.0, 10.0),
             "hover_m": (self.hover_m, 0.0, 0.1),
         }
@@ -220,8 +256,8 @@ class DemoSpec:
             "name": self.name,
             "family": self.family,
             "params": dict(self.params),
-            "press_m": float(self.press_m),
-            "duration_s": float(self.duration_s),
+            "press_m": None if self.press_m is None else float(self.press_m),
+            "duration_s": float(self.duration_s),  # type: ignore[arg-type]
             "approach_s": float(self.approach_s),
             "hover_m": float(self.hover_m),
             "stiffness_Npm": list(self.stiffness_Npm),

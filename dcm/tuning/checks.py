@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -92,7 +93,7 @@ class CheckedConfig:
     spec: Any  # dcm.sim.demos.DemoSpec of the new skill
     domain: Any  # dcm.sim.domain.DomainSpec
     space: SearchSpace
-    reference: np.ndarray | None  # the configured hypervolume reference point, None: automatic
+    reference: np.ndarray | None  # the configured hypervolume reference point; None: the skill's own
 
 
 def check_config(cfg: Any) -> CheckedConfig:
@@ -143,11 +144,12 @@ def check_config(cfg: Any) -> CheckedConfig:
     else:
         spec = DemoSpec.from_dict(to_container(cfg.demo), where="tune.demo")
     _number(cfg.get("task_from_s", 0.0), "task_from_s")
+    horizon = spec.horizon(cfg.control_hz)  # a path leaving the bowl is named by the spec's own error
     try:
-        task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, spec.horizon(cfg.control_hz))
+        task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, horizon)
     except ValueError as err:
-        raise TuneConfigError(f"{err} (the demo's length)") from None
-    probe = np.random.default_rng(0).normal(size=(spec.horizon(cfg.control_hz), 6))  # stands in for the demo force
+        raise TuneConfigError(f"{err} (this skill's demo)") from None
+    probe = np.random.default_rng(0).normal(size=(horizon, 6))  # stands in for the demo force
     try:
         phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, probe)
     except ValueError as err:
@@ -178,10 +180,11 @@ class DemoRecordingWarning(UserWarning):
     """The new skill's demo is recorded otherwise than the predictor's training demos."""
 
 
-def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
+def recording_mismatch(ckpt: Any, spec: Any, control_hz: float = 20.0) -> str | None:
     """Why the skill's demo (a DemoSpec) is not recorded as the predictor's training demos were; None if it
     is, or if the predictor does not name a dataset preset. F_demo and x_demo are model inputs, so another
-    duration or demonstrator is an input the model never saw, and its ranking can drop."""
+    duration or demonstrator is an input the model never saw, and its ranking can drop. A waypoint file sets
+    its own duration: it matches when it gives the training demos' step count at ``control_hz``."""
     from dcm.data.recording import Recording, preset_recording
     from dcm.models.predict import trained_on
 
@@ -190,7 +193,10 @@ def recording_mismatch(ckpt: Any, spec: Any) -> str | None:
     if trained is None:
         return None
     fixes = []
-    if spec.family != "waypoints" and float(spec.duration_s) != trained.duration_s:  # a file sets its own timing
+    if spec.family == "waypoints":
+        if spec.horizon(control_hz) != round(trained.duration_s * control_hz):
+            fixes.append(f"retime {spec.waypoints} to span {trained.duration_s:g} s")
+    elif float(spec.duration_s) != trained.duration_s:
         fixes.append(f"demo.duration_s={trained.duration_s:g}")
     if bool(spec.lead) != trained.lead:
         fixes.append(f"++demo.lead={str(trained.lead).lower()}")
@@ -220,3 +226,121 @@ def bowl_override(bowl: Any, **changes: Any) -> str:
         f"{v:g}" if isinstance(v, float) else str(v))
     return "'demo.bowl={" + ",".join(f"{k}:{plain(v)}" for k, v in fields.items()) + "}'"
 
+
+
+# ----------------------------------------------------------------------------------------------- guessing
+class ConditioningRangeWarning(UserWarning):
+    """A model input of this skill lies far outside the range the model was trained on: its predictions there
+    are extrapolations."""
+
+
+class PredictionErrorWarning(UserWarning):
+    """The model's L_task on the validated solutions is much further from the simulator's than on its valid
+    split: its ranking of this skill's schedules is likely off."""
+
+
+# Inputs are judged in the model's normalised units, where the normaliser's training range is [-1, 1]: warn
+# beyond this many half-widths from its centre (past the range by half its width; zscore: 6 std from the mean).
+CONDITIONING_LIMIT = 2.0
+# The validated solutions' mean |predicted - realised| L_task may reach this multiple of the model's valid
+# error (its card's evaluation on the valid split) ...
+PREDICTION_ERROR_FACTOR = 3.0
+# ... or, without one (a training checkpoint, a stiffness reference, a blend with a prior), this many newtons.
+PREDICTION_TOLERANCE_N = 0.3
+_UNITS = {"m": "m", "rad": "rad", "N": "N", "Nm": "N·m", "Npm": "N/m", "Nmprad": "N·m/rad"}
+
+
+def _force_model(model: Any) -> Any:
+    """The force model behind a predictor (a blend's model), or None for one without input normalisers."""
+    inner = getattr(model, "model", model)  # PriorBlend keeps the force model as .model
+    return inner if hasattr(inner, "cond_norm") and hasattr(inner, "cfg") else None
+
+
+def conditioning_check(model: Any, inputs: tuple[np.ndarray, ...], stiffness_Npm: list[float]) -> dict[str, Any]:
+    """Where this skill's model inputs leave the model's training range, channel by channel.
+
+    ``inputs``: the raw (x_demo, F_demo, x_attr, K), each (B, H, 6), of the B constant schedules at
+    ``stiffness_Npm`` (the search space's softest and stiffest), so the attractor is judged over the space's
+    stiffness range. Returns what ``results.json`` records; the range is the one the model's input normaliser
+    stores (``minmax``: the train split's min..max; ``zscore``: its mean ± 3 std).
+    """
+    import torch
+
+    from dcm.data.schema import cond_channel_names, cond_slice
+    from dcm.models.cond_encoding import encode_conditions
+
+    force_model = _force_model(model)
+    if force_model is None:
+        return {"checked": False, "why": "the predictor has no input normaliser (a stiffness reference)"}
+    encoding = force_model.cfg.cond_encoding
+    cond = torch.as_tensor(np.concatenate(inputs, axis=-1))
+    encoded = encode_conditions(cond, encoding).double().numpy()  # (B, H, 24)
+    low, high = force_model.cond_norm.value_range()
+    center, half = (low + high) / 2, (high - low) / 2
+    normalised = (encoded - center) / half
+    x_attr, k = cond_slice("x_attr"), cond_slice("K")
+    outside = []
+    for c, name in enumerate(cond_channel_names()):
+        b, t = np.unravel_index(np.argmax(np.abs(normalised[..., c])), normalised.shape[:2])
+        z = float(normalised[b, t, c])
+        if abs(z) <= CONDITIONING_LIMIT:
+            continue
+        value, lo, hi, shown = float(encoded[b, t, c]), float(low[c]), float(high[c]), name
+        if encoding == "physical" and k.start <= c < k.stop:  # the net reads log K: show it in N/m
+            value, lo, hi = (float(np.exp(v)) for v in (value, lo, hi))
+        elif encoding == "physical" and x_attr.start <= c < x_attr.stop:  # the net reads x_attr - x_demo
+            shown = f"{name} - x_demo.{name.split('.', 1)[1]}"
+        depends = x_attr.start <= c < x_attr.stop or k.start <= c < k.stop
+        outside.append({"channel": shown, "value": value, "unit": _UNITS[name.rsplit("_", 1)[1]],
+                        "training_low": lo, "training_high": hi, "normalised": z,
+                        "stiffness_Npm": float(stiffness_Npm[b]) if depends else None})
+    return {"checked": True, "normalization": force_model.cfg.normalization, "cond_encoding": encoding,
+            "limit": CONDITIONING_LIMIT, "in_range": not outside, "outside": outside}
+
+
+def conditioning_warnings(conditioning: dict[str, Any]) -> list[str]:
+    """One line per channel :func:`conditioning_check` found outside, naming it and how far out it lies."""
+    lines = []
+    for c in conditioning.get("outside", []):
+        unit, at = c["unit"], "" if c["stiffness_Npm"] is None else f" at stiffness {c['stiffness_Npm']:g} N/m"
+        lines.append(f"{c['channel']}: {c['value']:.3g} {unit}{at} lies outside the training range "
+                     f"[{c['training_low']:.3g}, {c['training_high']:.3g}] {unit}, {abs(c['normalised']):.3g}x the "
+                     f"range's half-width from its centre (warned above {conditioning['limit']:g}x); the model's "
+                     "predictions there are extrapolations")
+    return lines
+
+
+def prediction_limit(ckpt: Any, prior: Any) -> dict[str, Any]:
+    """How far the validated solutions' predicted L_task may be from the realised one before the run warns:
+    ``PREDICTION_ERROR_FACTOR`` x the valid-split L_task error the checkpoint's card records for its own
+    dataset, else ``PREDICTION_TOLERANCE_N`` (and always with a prior: the blend is not what the card scored)."""
+    from dcm.models.checkpoint import checkpoint_card
+
+    card: dict[str, Any] = {}
+    if not prior and str(ckpt).lower().endswith(".ckpt"):
+        try:
+            card = checkpoint_card(ckpt) or {}
+        except ValueError:
+            card = {}
+    trained_on = Path(str((card.get("dataset") or {}).get("path") or "")).name
+    for key, evaluation in (card.get("evaluations") or {}).items():
+        if not isinstance(evaluation, dict) or evaluation.get("split") != "valid" or not trained_on:
+            continue
+        error = evaluation.get("L_task_mae_N")
+        if Path(str(evaluation.get("dataset", ""))).name == trained_on and isinstance(error, (int, float)) and \
+                math.isfinite(error) and error > 0:
+            return {"limit_N": PREDICTION_ERROR_FACTOR * float(error), "valid_L_task_mae_N": float(error),
+                    "factor": PREDICTION_ERROR_FACTOR, "limit_source": f"{PREDICTION_ERROR_FACTOR:g} x the valid "
+                    f"L_task error in the checkpoint's card ({key})"}
+    return {"limit_N": PREDICTION_TOLERANCE_N, "valid_L_task_mae_N": None, "factor": None,
+            "limit_source": "absolute tolerance"}
+
+
+def prediction_check(predicted: np.ndarray, realised: np.ndarray, limit: dict[str, Any]) -> dict[str, Any]:
+    """Predicted against realised L_task [N] of the validated solutions (failed rollouts left out), for
+    ``results.json``: their mean absolute difference and whether it exceeds ``limit``."""
+    keep = np.isfinite(predicted) & np.isfinite(realised)
+    error = float(np.mean(np.abs(predicted[keep] - realised[keep]))) if keep.any() else None
+    return {"predicted_L_task_N": predicted[keep].tolist(), "realised_L_task_N": realised[keep].tolist(),
+            "L_task_mae_N": error, "n_solutions": int(keep.sum()), **limit,
+            "exceeded": error is not None and error > limit["limit_N"]}

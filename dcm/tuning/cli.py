@@ -3,7 +3,7 @@
 See conf/tune.yaml for every option and docs/tune.md for the guide. Writes results.json, overview.png,
 pareto.png and solution_forces.png to the run directory; a killed run resumes with the same command plus
 ``hydra.run.dir=<that run directory>``. A setting that cannot work stops the run with one line on stderr
-(``error: ...``) and exit code 1.
+(``error: ...``), also written to the run directory's ``tune.log``, and exit code 1.
 """
 
 from __future__ import annotations
@@ -13,23 +13,39 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, quiet_libraries
+from dcm.cli import CONF_DIR, one_line_warnings, quiet_libraries, to_run_log
 
 
 # An absolute config path: a relative one would be looked up as a Python package once this is imported as a module.
 @hydra.main(config_path=str(CONF_DIR), config_name="tune")
 def main(cfg: DictConfig) -> None:
     quiet_libraries()
+    one_line_warnings()
     from dcm.tuning.run import tune
 
     try:
         results = tune(cfg, Path(cfg.out_dir))
     except (ValueError, OSError) as err:  # TuneConfigError, TrialLogMismatch, ModelInputError, DemoSpecError, ...
-        raise SystemExit(f"error: {' '.join(str(err).split())}") from None
-    free, robot = results["robot_free"], results["robot_based"]
+        line = f"error: {' '.join(str(err).split())}"
+        to_run_log(line)  # the run directory's tune.log says why the run stopped
+        raise SystemExit(line) from None
+    free, robot, ref = results["robot_free"], results["robot_based"], results["reference_point"]
+    rule = ref.get("rule")
+    how = "given" if rule is None else (
+        f"{rule['task_factor']:g} x L_task at the demo's stiffness {rule['demo_stiffness_Npm'][0]:g} N/m, "
+        f"{rule['comp_factor']:g} x L_comp at {rule['stiffest_Npm']:g} N/m")
+    print(f"hypervolume reference point: L_task {ref['L_task_N']:.4g} N, L_comp {ref['L_comp_kNpm']:.4g} kN/m ({how})")
     print(f"robot-free: {free['n_virtual_trials']} virtual trials in {free['seconds']:.1f} s "
           f"(model {free['seconds_model']:.1f} s, optimiser {free['seconds_optimiser']:.1f} s), "
           f"{free['n_validated']} solutions validated, hypervolume {free['hypervolume']:.4g}")
+    prediction = free["prediction"]
+    if prediction["L_task_mae_N"] is not None:
+        pairs = ", ".join(f"{p:.3g} -> {r:.3g}" for p, r in zip(prediction["predicted_L_task_N"],
+                                                               prediction["realised_L_task_N"]))
+        verdict = "exceeds" if prediction["exceeded"] else "within"
+        print(f"robot-free L_task predicted -> validated [N]: {pairs}; "
+              f"mean |error| {prediction['L_task_mae_N']:.3g} N, {verdict} {prediction['limit_N']:.3g} N "
+              f"({prediction['limit_source']})")
     if robot["hypervolume"] is not None:
         print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s, "
               f"hypervolume {robot['hypervolume']:.4g}")

@@ -13,6 +13,10 @@ Steps (each resumable from the run directory):
    draws the search kept;
 5. hypervolume I_H of both, against one reference point, written to ``results.json`` with figures.
 
+The reference point is the skill's (:func:`skill_reference_point`), set before any search: hypervolumes
+compare only on one point, so a point pooled from a run's own results would score two seeds of one skill on
+different points, and their verdicts could flip.
+
 A diffusion model's samples are seeded per batch from ``(seed, first trial of the batch)``, so the same
 settings give the same numbers, and a killed run resumed from its logs gives the numbers of an uninterrupted one.
 """
@@ -31,13 +35,21 @@ import numpy as np
 from dcm.control import phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import make_search
-from dcm.tuning.checks import (CheckedConfig, DemoRecordingWarning, TuneConfigError, check_config, check_predictor,
-                               recording_mismatch, to_container)
+from dcm.tuning.checks import (CheckedConfig, ConditioningRangeWarning, DemoRecordingWarning, PredictionErrorWarning,
+                               TuneConfigError, check_config, check_predictor, conditioning_check,
+                               conditioning_warnings, prediction_check, prediction_limit, recording_mismatch,
+                               to_container)
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
-from dcm.tuning.pareto import hypervolume, pareto_mask, reference_point
+from dcm.tuning.pareto import hypervolume, pareto_mask
 from dcm.tuning.report import plot_overview, plot_pareto, plot_solution_forces
 
+# The skill's hypervolume reference point (docs/tune.md#what-a-run-does): L_task of a rollout at the demo's own
+# stiffness times REFERENCE_TASK_FACTOR, and L_comp of the stiffest schedule of the search space times
+# REFERENCE_COMP_FACTOR, in the simulator seeded REFERENCE_SEED; the multi-seed studies use the same rule.
+REFERENCE_TASK_FACTOR = 1.5
+REFERENCE_COMP_FACTOR = 1.0
+REFERENCE_SEED = 0
 FREE_LOG = "robot_free_trials.npz"
 ROBOT_LOG = "robot_based_trials.npz"
 PLOT_BATCH = 2**31  # the figure's prediction is seeded like a batch no run reaches
@@ -108,7 +120,7 @@ def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
 
     model = load_model(cfg.ckpt, map_location=device)
     check_predictor(model, cfg)
-    if (mismatch := recording_mismatch(cfg.ckpt, spec)) is not None:
+    if (mismatch := recording_mismatch(cfg.ckpt, spec, cfg.control_hz)) is not None:
         warnings.warn(mismatch, DemoRecordingWarning, stacklevel=3)
     use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
     if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
@@ -169,16 +181,66 @@ def _jsonable(value: Any) -> Any:
 
 
 # ----------------------------------------------------------------------------------------------- the run
-def record_skill(cfg: Any, checked: CheckedConfig) -> tuple[Any, Any, Skill]:
-    """The new skill's simulator, its recorded demo and the ``Skill`` (phases, schedules) the tuners search."""
+def record_skill(cfg: Any, checked: CheckedConfig, seed: int | None = None) -> tuple[Any, Any, Skill]:
+    """The new skill's simulator, its recorded demo and the ``Skill`` (phases, schedules) the tuners search;
+    the simulator seeded ``seed`` instead of ``cfg.seed`` when given."""
     from dcm.sim.rollout import Simulator
 
     simulator = Simulator(embodiment=cfg.embodiment, bowl=checked.spec.bowl, domain=checked.domain,
-                          control_hz=cfg.control_hz, seed=cfg.seed, damping=cfg.stiffness.damping)
+                          control_hz=cfg.control_hz, seed=cfg.seed if seed is None else seed,
+                          damping=cfg.stiffness.damping)
     demo = simulator.record_demo(checked.spec)
     boundaries = phase_boundaries(cfg.stiffness.phases, cfg.stiffness.n_phases, demo.force_demo)
     start = task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, demo.horizon)  # checked by check_config
     return simulator, demo, Skill(demo.x_demo, demo.force_demo, boundaries, cfg.stiffness.rot_Nmprad, start)
+
+
+def skill_reference_point(cfg: Any, checked: CheckedConfig, recorded: tuple[Any, Any, Skill]) -> dict[str, Any]:
+    """The hypervolume reference point of this skill: ``reference_point`` when given, else
+    ``(REFERENCE_TASK_FACTOR x L_task at the demo's own stiffness, REFERENCE_COMP_FACTOR x L_comp of the
+    stiffest schedule)``.
+
+    Why these: the demonstrator's stiffness is the schedule a user has without tuning, so a solution counts
+    when it tracks the demo force nearly as well as that; the stiffest schedule bounds L_comp for every
+    schedule of the search space. The rollout runs in a simulator seeded ``REFERENCE_SEED`` (on a demo
+    recorded there), with ``validation_rollouts`` rollouts as a validated solution is judged, so the point
+    depends on the skill, the domain and the search space, not on the run's seed or results. ``recorded``:
+    this run's (simulator, demo, skill), reused when its seed is ``REFERENCE_SEED``.
+    """
+    from dcm.control import compliance_loss
+
+    if checked.reference is not None:
+        return {"L_task_N": float(checked.reference[0]), "L_comp_kNpm": float(checked.reference[1]),
+                "source": "reference_point"}
+    simulator, demo, skill = recorded if int(cfg.seed) == REFERENCE_SEED else record_skill(cfg, checked,
+                                                                                           REFERENCE_SEED)
+    space = checked.space
+    demo_stiffness = np.tile(np.asarray(checked.spec.stiffness_Npm, dtype=np.float64), (1, space.n_phases, 1))
+    task = float(SimulatorObjective(simulator, demo, skill, int(cfg.validation_rollouts))(demo_stiffness)[0, 0])
+    if not np.isfinite(task):
+        raise TuneConfigError(
+            f"the rollout at the demo's own stiffness {list(checked.spec.stiffness_Npm)} N/m failed, so it cannot "
+            "set the hypervolume reference point; give reference_point=[L_task_N,L_comp_kNpm]")
+    stiffest = float(compliance_loss(skill.schedules(np.full((1, space.n_phases, 3), space.max_Npm)))[0])
+    return {"L_task_N": REFERENCE_TASK_FACTOR * task, "L_comp_kNpm": REFERENCE_COMP_FACTOR * stiffest,
+            "source": "skill",
+            "rule": {"demo_stiffness_Npm": [float(v) for v in checked.spec.stiffness_Npm],
+                     "demo_stiffness_L_task_N": task, "task_factor": REFERENCE_TASK_FACTOR,
+                     "stiffest_Npm": float(space.max_Npm), "stiffest_L_comp_kNpm": stiffest,
+                     "comp_factor": REFERENCE_COMP_FACTOR, "simulator_seed": REFERENCE_SEED,
+                     "rollouts": int(cfg.validation_rollouts)}}
+
+
+def check_conditioning(model: Any, objective: ModelObjective, space: Any) -> dict[str, Any]:
+    """Judge the skill's model inputs against the model's training range before the search (the demo, and the
+    attractor and stiffness of the space's softest and stiffest constant schedules); warn once per channel
+    outside it (:class:`ConditioningRangeWarning`). Returns what ``results.json`` records."""
+    levels = [float(space.min_Npm), float(space.max_Npm)]
+    proposals = np.stack([np.full((space.n_phases, 3), level) for level in levels])
+    conditioning = conditioning_check(model, objective.inputs(proposals), levels)
+    for line in conditioning_warnings(conditioning):
+        warnings.warn(line, ConditioningRangeWarning, stacklevel=3)
+    return conditioning
 
 
 def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
@@ -187,7 +249,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     from dcm.models.predict import describe
 
     checked = check_config(cfg)
-    spec, domain, space, reference_cfg = checked.spec, checked.domain, checked.space, checked.reference
+    spec, domain, space = checked.spec, checked.domain, checked.space
     overwrite = bool(cfg.get("overwrite", False))
     device = resolve_device(cfg.device, "device")
     if cfg.get("torch_threads") is not None:
@@ -206,6 +268,8 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
         resumable_log(robot_path, prints["robot_based"], overwrite)
 
     simulator, demo, skill = record_skill(cfg, checked)
+    reference_info = skill_reference_point(cfg, checked, (simulator, demo, skill))
+    reference = np.array([reference_info["L_task_N"], reference_info["L_comp_kNpm"]])
 
     def search_loop(evaluate: Any, n_trials: int, batch_size: int, path: Path, fingerprint: dict, desc: str,
                     times: LoopTimes, log_notes: dict | None = None) -> TrialLog:
@@ -224,6 +288,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
 
     model_objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), cfg.robot_free.n_samples,
                                      seed=cfg.seed)
+    conditioning = check_conditioning(model, model_objective, space)
     free_times = LoopTimes()
     free_log = search_loop(model_objective, cfg.robot_free.n_trials, cfg.robot_free.batch_size, free_path,
                            prints["robot_free"], "robot-free (model)", free_times, notes)
@@ -235,6 +300,13 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     start = time.perf_counter()
     validated = validation(free_params[chosen])
     validation_seconds = time.perf_counter() - start
+    prediction = prediction_check(free_predicted[chosen, 0], validated[:, 0],
+                                  prediction_limit(cfg.ckpt, cfg.get("prior")))
+    if prediction["exceeded"]:
+        warnings.warn(f"the model's L_task error on the validated solutions, {prediction['L_task_mae_N']:.3g} N "
+                      f"(mean |predicted - realised| over {prediction['n_solutions']}), exceeds "
+                      f"{prediction['limit_N']:.3g} N ({prediction['limit_source']}): its ranking of this skill's "
+                      "schedules is likely off", PredictionErrorWarning, stacklevel=2)
 
     robot_based = np.zeros((0, 2))
     robot_times = LoopTimes()
@@ -250,8 +322,6 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
             robot_validation_seconds = time.perf_counter() - start
 
     finite = lambda a: a[np.isfinite(a).all(axis=1)]  # noqa: E731
-    judged = [finite(validated), finite(robot_based if robot_expected is None else robot_expected[1])]
-    reference = reference_cfg if reference_cfg is not None else reference_point(*judged)
     results = {
         "checkpoint": str(cfg.ckpt),
         "model": type(model).__name__,
@@ -261,8 +331,8 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
         "seed": int(cfg.seed),
         "torch_threads": _torch_threads(),
         "skill": prints["skill"],
-        "reference_point": {"L_task_N": reference[0], "L_comp_kNpm": reference[1],
-                            "source": "reference_point" if reference_cfg is not None else "automatic"},
+        "reference_point": reference_info,
+        "conditioning": conditioning,
         "robot_free": {
             "n_virtual_trials": len(free_log),
             "seconds": free_times.total,  # this invocation only: replayed trials cost no model time
@@ -272,6 +342,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
             "n_validated": len(chosen),
             "validation_rollouts": rollouts,
             "validation_seconds": validation_seconds,
+            "prediction": prediction,
             "hypervolume": hypervolume(finite(validated), reference),
             "solutions": [solution_record(free_params[i], validated[j], predicted=free_predicted[i])
                           for j, i in enumerate(chosen)],
@@ -317,5 +388,6 @@ def _plot_best(out_dir: Path, objective: ModelObjective, params: np.ndarray, val
     plot_overview(out_dir / "overview.png", pareto, *forces, f"{demo.spec.name}: {title}")
 
 
-__all__ = ["FREE_LOG", "ROBOT_LOG", "fingerprints", "load_predictor", "pick_spread", "record_skill", "solution_record",
-           "tune", "use_sampler", "validate_front"]
+__all__ = ["FREE_LOG", "REFERENCE_COMP_FACTOR", "REFERENCE_SEED", "REFERENCE_TASK_FACTOR", "ROBOT_LOG", "fingerprints",
+           "load_predictor", "pick_spread", "record_skill", "skill_reference_point", "solution_record", "tune",
+           "use_sampler", "validate_front"]
