@@ -44,7 +44,7 @@ def tune_config(skill: str, seed: int, tuner: str, threads: int, out_dir: Path, 
 
     overrides = [f"demo={skill}", f"seed={seed}", "robot_based.n_trials=0", f"torch_threads={threads}",
                  f"out_dir={out_dir}", *TUNERS[tuner], *extra]
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+    with initialize_config_dir(config_dir=str(CONF_DIR)):
         return compose(config_name="quickstart", overrides=overrides)
 
 
