@@ -97,8 +97,14 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=16, help="samples per virtual trial of the second row")
     parser.add_argument("--row", action="append", default=[], metavar='"LABEL: k=v ..."',
                         help="another model row: a label and its overrides (repeatable)")
+    parser.add_argument("--parallel-retention", action="store_true",
+                        help="predict with the RetNet's parallel form instead of its chunkwise one (same outputs)")
     parser.add_argument("overrides", nargs="*", help="k=v overrides of conf/quickstart.yaml for every row")
     args = parser.parse_args()
+    if args.parallel_retention:
+        from dcm.models.nets.retnet import MultiScaleRetention
+
+        MultiScaleRetention.CHUNK_STEPS = 2**31  # longer than any demo: the parallel form everywhere
 
     import torch
 
