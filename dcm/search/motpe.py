@@ -31,8 +31,8 @@ class MOTPESearch:
         import optuna
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
-        options = dict(seed=seed, n_startup_trials=n_startup_trials, multivariate=multivariate,
-                       n_ei_candidates=n_ei_candidates)
+        options = {"seed": seed, "n_startup_trials": n_startup_trials, "multivariate": multivariate,
+                   "n_ei_candidates": n_ei_candidates}
         with warnings.catch_warnings():  # multivariate TPE is flagged experimental; behaviour is what we want
             warnings.simplefilter("ignore")
             sampler = _batch_sampler(**options) if batched else optuna.samplers.TPESampler(constant_liar=True,
@@ -117,8 +117,10 @@ def _batch_sampler(**options: Any) -> Any:
 
 def _continuous(estimator: Any) -> bool:
     """Whether every parameter of a Parzen estimator is continuous (a stiffness search's are)."""
-    from optuna.samplers._tpe.probability_distributions import (_BatchedTruncLogNormDistributions,
-                                                                _BatchedTruncNormDistributions)
+    from optuna.samplers._tpe.probability_distributions import (
+        _BatchedTruncLogNormDistributions,
+        _BatchedTruncNormDistributions,
+    )
 
     kinds = (_BatchedTruncNormDistributions, _BatchedTruncLogNormDistributions)
     return all(isinstance(d, kinds) and d.step == 0.0 for d in estimator._mixture_distribution.distributions)

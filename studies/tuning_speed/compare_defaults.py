@@ -26,8 +26,9 @@ import os
 import platform
 import subprocess
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -109,18 +110,18 @@ def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[
         "",
         f"Command: `{command}`",
         "",
-        f"Machine: {machine()}; load average (1/5/15 min) {'/'.join(f'{v:.2f}' for v in load[0])} at the start, "
+        (f"Machine: {machine()}; load average (1/5/15 min) {'/'.join(f'{v:.2f}' for v in load[0])} at the start, "
         f"{'/'.join(f'{v:.2f}' for v in load[1])} at the end (quality runs; timing does not enter I_H); "
-        f"{wall_s / 60:.0f} min.",
+        f"{wall_s / 60:.0f} min."),
         "",
-        f"Tuners: `new` = `conf/tune.yaml` (DDIM 1 step, `precision=auto`, batched MOTPE); `old` = "
+        (f"Tuners: `new` = `conf/tune.yaml` (DDIM 1 step, `precision=auto`, batched MOTPE); `old` = "
         f"`{' '.join(TUNERS['old'])}` (DDIM 5 steps, float32, Optuna's MOTPE fit per proposal). Shipped DCM, "
         f"the quickstart's recording (12 s, leading demonstrator), {seeds} tuning seeds, 1,000 virtual trials, "
         "5 validated solutions. Reference point per skill: the worst validated (L_task, L_comp) over both "
-        "tuners and all seeds + 10 % of the range, the same for both tuners.",
+        "tuners and all seeds + 10 % of the range, the same for both tuners."),
         "",
-        "| skill | reference point (N, kN/m) | n | median I_H old | median I_H new | median difference new - old "
-        "| wins/losses | Wilcoxon p | median robot-free s old / new |",
+        ("| skill | reference point (N, kN/m) | n | median I_H old | median I_H new | median difference new - old "
+        "| wins/losses | Wilcoxon p | median robot-free s old / new |"),
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for skill, r in report.items():

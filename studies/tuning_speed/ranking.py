@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import argparse
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -67,7 +67,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             model = load_predictor(cfg, checked.spec, resolve_device(cfg.device, "device"))
         objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), 1, seed=0)
         batch = int(cfg.robot_free.batch_size)
-        predicted[name] = np.concatenate([objective(params[i:i + batch], i)[:, 0] for i in range(0, len(params), batch)])
+        predicted[name] = np.concatenate([objective(params[i:i + batch], i)[:, 0]
+                                          for i in range(0, len(params), batch)])
     reference = predicted[next(iter(SETTINGS))]
     print(f"skill {args.skill} (quickstart's recording), {source}; predicted L_task against "
           f"{next(iter(SETTINGS))}:")
