@@ -1,7 +1,7 @@
 """Robot-free tuning against the simulator it stands in for: 1,000 virtual trials beside 1,000 simulated ones.
 
     MUJOCO_GL=egl python bench/tuning_vs_sim.py [--threads 1] [--trials 1000] [--sim-trials 50]
-        [--row "label: k=v k=v"] [k=v ...]
+        [--row "label: k=v k=v"] [--parallel-retention] [k=v ...]
 
 In one process, on the quickstart's skill (``conf/quickstart.yaml``: the shipped DCM, the wavelike demo recorded
 as its training demos were) and at one torch thread count, it times
