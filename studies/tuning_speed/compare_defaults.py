@@ -37,6 +37,11 @@ CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 TUNERS = {
     "old": ["robot_free.sampling_steps=5", "robot_free.precision=float32", "robot_free.batched_search=false"],
     "new": [],
+    # the default's levers apart: which one costs hypervolume where it does
+    "ddim1": ["robot_free.sampling_steps=1"],
+    "ddim2": ["robot_free.sampling_steps=2"],
+    "ddim3": ["robot_free.sampling_steps=3"],
+    "ddim5": ["robot_free.sampling_steps=5"],
 }
 
 
@@ -85,20 +90,26 @@ def validated(results: dict[str, Any]) -> np.ndarray:
 
 
 def compare(runs: dict[str, dict[str, list[dict[str, Any]]]]) -> dict[str, Any]:
-    """Per skill: the shared reference point, I_H per tuner and seed, medians and the paired test (new vs old)."""
+    """Per skill and tuner other than ``old``: the reference point of that pair, both tuners' I_H per seed
+    against it, medians and the paired test of the tuner against ``old``."""
     from dcm.tuning.pareto import hypervolume, reference_point
     from studies.tuning_study.study_stats import paired_test, summarize
 
     report: dict[str, Any] = {}
     for skill, by_tuner in runs.items():
-        reference = reference_point(*[validated(r) for results in by_tuner.values() for r in results])
-        hv = {tuner: [hypervolume(validated(r), reference) if len(validated(r)) else float("nan") for r in results]
-              for tuner, results in by_tuner.items()}
-        seconds = {tuner: [float(r["robot_free"]["seconds"]) for r in results] for tuner, results in by_tuner.items()}
-        report[skill] = {"reference_point": reference.tolist(), "I_H": hv,
-                         "summary": {tuner: summarize(values) for tuner, values in hv.items()},
-                         "test_new_vs_old": paired_test(hv["new"], hv["old"]),
-                         "median_robot_free_seconds": {t: float(np.median(s)) for t, s in seconds.items()}}
+        for tuner, results in by_tuner.items():
+            if tuner == "old":
+                continue
+            pair = {"old": by_tuner["old"], tuner: results}
+            reference = reference_point(*[validated(r) for rs in pair.values() for r in rs])
+            hv = {t: [hypervolume(validated(r), reference) if len(validated(r)) else float("nan") for r in rs]
+                  for t, rs in pair.items()}
+            report.setdefault(skill, {})[tuner] = {
+                "reference_point": reference.tolist(), "I_H": hv,
+                "summary": {t: summarize(values) for t, values in hv.items()},
+                "test_vs_old": paired_test(hv[tuner], hv["old"]),
+                "median_robot_free_seconds": {t: float(np.median([r["robot_free"]["seconds"] for r in rs]))
+                                              for t, rs in pair.items()}}
     return report
 
 
@@ -129,22 +140,24 @@ def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[
         "5 validated solutions. Reference point per skill: the worst validated (L_task, L_comp) over both "
         "tuners and all seeds + 10 % of the range, the same for both tuners."),
         "",
-        ("| skill | reference point (N, kN/m) | n | median I_H old | median I_H new | median difference new - old "
-        "| wins/losses | Wilcoxon p | median robot-free s old / new |"),
-        "|---|---|---|---|---|---|---|---|---|",
+        ("| skill | tuner | reference point (N, kN/m) | n | median I_H old | median I_H tuner "
+         "| median difference tuner - old | wins/losses | Wilcoxon p | median robot-free s old / tuner |"),
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for skill, r in report.items():
-        test, s = r["test_new_vs_old"], r["summary"]
-        p = "n/a" if test["p"] is None else f"{test['p']:.3f}"
-        secs = r["median_robot_free_seconds"]
-        lines.append(f"| {skill} | ({r['reference_point'][0]:.3f}, {r['reference_point'][1]:.3f}) | "
-                     f"{test['n_pairs']} | {s['old']['median']:.4f} | {s['new']['median']:.4f} | "
-                     f"{test['median_difference']:+.4f} | {test['wins']}/{test['losses']} | {p} | "
-                     f"{secs['old']:.1f} / {secs['new']:.1f} |")
-    lines += ["", "Per seed I_H (old, new):", ""]
-    for skill, r in report.items():
-        pairs = ", ".join(f"({a:.3f}, {b:.3f})" for a, b in zip(r["I_H"]["old"], r["I_H"]["new"]))
-        lines.append(f"- {skill}: {pairs}")
+    for skill, by_tuner in report.items():
+        for tuner, r in by_tuner.items():
+            test, s = r["test_vs_old"], r["summary"]
+            p = "n/a" if test["p"] is None else f"{test['p']:.3f}"
+            secs = r["median_robot_free_seconds"]
+            lines.append(f"| {skill} | {tuner} | ({r['reference_point'][0]:.3f}, {r['reference_point'][1]:.3f}) | "
+                         f"{test['n_pairs']} | {s['old']['median']:.4f} | {s[tuner]['median']:.4f} | "
+                         f"{test['median_difference']:+.4f} | {test['wins']}/{test['losses']} | {p} | "
+                         f"{secs['old']:.1f} / {secs[tuner]:.1f} |")
+    lines += ["", "Per seed I_H (old, tuner), each pair on its own reference point:", ""]
+    for skill, by_tuner in report.items():
+        for tuner, r in by_tuner.items():
+            pairs = ", ".join(f"({a:.3f}, {b:.3f})" for a, b in zip(r["I_H"]["old"], r["I_H"][tuner]))
+            lines.append(f"- {skill}, {tuner}: {pairs}")
     return "\n".join(lines) + "\n"
 
 
@@ -155,13 +168,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads of every run")
     parser.add_argument("--out", type=Path, default=Path("outputs/studies/tuning_speed"))
     parser.add_argument("--report", type=Path, default=None, help="write the markdown report here")
+    parser.add_argument("--tuners", nargs="+", choices=sorted(TUNERS), default=["old", "new"],
+                        help="tuners to run and report, each against old")
     parser.add_argument("--only", choices=sorted(TUNERS), default=None, help="run one tuner only (no report)")
     args = parser.parse_args(argv)
 
     load_start, start = list(os.getloadavg()), time.perf_counter()
     runs: dict[str, dict[str, list[dict[str, Any]]]] = {}
     for skill in args.skills:
-        for tuner in ([args.only] if args.only else list(TUNERS)):
+        for tuner in ([args.only] if args.only else ["old", *[t for t in args.tuners if t != "old"]]):
             for seed in range(args.seeds):
                 results = run_one(skill, seed, tuner, args.threads, args.out)
                 runs.setdefault(skill, {}).setdefault(tuner, []).append(results)
