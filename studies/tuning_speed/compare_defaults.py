@@ -130,15 +130,17 @@ def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[
         "",
         f"Command: `{command}`",
         "",
-        (f"Machine: {machine()}; load average (1/5/15 min) {'/'.join(f'{v:.2f}' for v in load[0])} at the start, "
-        f"{'/'.join(f'{v:.2f}' for v in load[1])} at the end (quality runs; timing does not enter I_H); "
-        f"{wall_s / 60:.0f} min."),
+        (f"Machine: {machine()}; load average (1/5/15 min) {'/'.join(f'{v:.2f}' for v in load[0])} when the "
+         "report was written (quality runs: timing does not enter I_H)."),
         "",
-        (f"Tuners: `new` = `conf/tune.yaml` (DDIM 1 step, `precision=auto`, batched MOTPE); `old` = "
-        f"`{' '.join(TUNERS['old'])}` (DDIM 5 steps, float32, Optuna's MOTPE fit per proposal). Shipped DCM, "
-        f"the quickstart's recording (12 s, leading demonstrator), {seeds} tuning seeds, 1,000 virtual trials, "
-        "5 validated solutions. Reference point per skill: the worst validated (L_task, L_comp) over both "
-        "tuners and all seeds + 10 % of the range, the same for both tuners."),
+        ("Tuners: `old` = " + f"`{' '.join(TUNERS['old'])}`" + " (DDIM 5 steps, float32, Optuna's MOTPE fit per "
+         "proposal, the RetNet's parallel form: the previous default); `new` = `conf/tune.yaml`; the others = "
+         "`conf/tune.yaml` with " + ", ".join(f"{t}: `{' '.join(o)}`" for t, o in TUNERS.items()
+                                             if t not in ("old", "new")) + ". "
+         f"Shipped DCM, the quickstart's recording (12 s, leading demonstrator), {seeds} tuning seeds, 1,000 "
+         "virtual trials, 5 validated solutions, one torch thread. Reference point per skill and pair: the worst "
+         "validated (L_task, L_comp) over both tuners' solutions of all seeds + 10 % of the range, the same for "
+         "both tuners of the pair. Test: paired two-sided Wilcoxon signed-rank, tuner against old."),
         "",
         ("| skill | tuner | reference point (N, kN/m) | n | median I_H old | median I_H tuner "
          "| median difference tuner - old | wins/losses | Wilcoxon p | median robot-free s old / tuner |"),
