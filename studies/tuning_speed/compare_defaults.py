@@ -1,14 +1,14 @@
 """Does the fast robot-free default tune as well as the one before it? Paired I_H over tuning seeds, per skill.
 
     python -m studies.tuning_speed.compare_defaults [--skills wavelike line spiral] [--seeds 16] [--threads 1]
-        [--out outputs/studies/tuning_speed] [--report studies/tuning_speed/reports/<name>.md]
+        [--tuners old new ddim1 ...] [--out outputs/studies/tuning_speed] [--report studies/tuning_speed/reports/<name>.md]
 
-Why: the fast default changes three things at once (one DDIM step instead of five, bfloat16 matrix products
+Why: the fast default changes three things at once (fewer DDIM steps than five, bfloat16 matrix products
 where the CPU has them, one MOTPE fit per batch of proposals instead of one per proposal), each of which could
 cost hypervolume. Per skill (recorded as ``conf/quickstart.yaml`` records its demo) and tuning seed, both
 tuners run :func:`dcm.tuning.run.tune` with the shipped DCM, five validated solutions and no robot-based search:
 
-* ``new``: ``conf/tune.yaml`` as it is;
+* ``new``: ``conf/tune.yaml`` as it is (``ddim1`` ... ``ddim5``: with that many steps, the levers apart);
 * ``old``: ``robot_free.sampling_steps=5 robot_free.precision=float32 robot_free.batched_search=false``, and
   the RetNet's parallel form (the chunkwise one gives the same outputs up to float rounding).
 
