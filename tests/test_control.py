@@ -132,3 +132,22 @@ def test_the_scored_window_starts_after_the_approach():
     np.testing.assert_allclose(task_loss(force_obs[0], force_demo[0], start),
                                task_loss(force_obs[0, start:], force_demo[0, start:]))
     assert task_loss(force_obs, force_demo, 0)[0] == task_loss(force_obs, force_demo)[0]
+
+
+def test_a_batch_of_schedules_gets_the_attractors_of_one_schedule_at_a_time():
+    """Robot-free tuning builds a whole batch's attractors at once; each must be the one of its own call."""
+    from dcm.control.impedance import attractor_from_demo, filter_schedule
+
+    rng = np.random.default_rng(0)
+    horizon = 40
+    x_demo = np.cumsum(rng.normal(0.0, 1e-3, (horizon, 6)), axis=0)
+    force_demo = rng.normal(0.0, 3.0, (horizon, 6))
+    schedules = np.repeat(rng.uniform(100.0, 1500.0, (5, 4, 6)), horizon // 4, axis=1)
+    mass = np.array([3.0, 3.0, 4.0, 0.1, 0.1, 0.1])
+    applied = filter_schedule(schedules, 0.05)
+    batch = attractor_from_demo(x_demo, force_demo, applied, 0.05, inertia=mass, mass=mass)
+    for k, schedule in enumerate(schedules):
+        one = filter_schedule(schedule, 0.05)
+        np.testing.assert_array_equal(applied[k], one)
+        np.testing.assert_array_equal(batch[k], attractor_from_demo(x_demo, force_demo, one, 0.05, inertia=mass,
+                                                                    mass=mass))

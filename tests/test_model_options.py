@@ -244,3 +244,24 @@ def test_top_step_fraction_puts_that_share_of_the_batch_at_pure_noise() -> None:
 def test_bad_top_step_fraction_is_named() -> None:
     with pytest.raises(ModelInputError, match="top_step_fraction must be in \\[0, 1\\], got 1.5"):
         DCM(net=dict(TINY_NET), top_step_fraction=1.5)
+
+
+def test_bfloat16_predictions_stay_close_to_float32_and_auto_follows_the_hardware() -> None:
+    from dcm.models.force_model import native_bfloat16
+
+    gen = torch.Generator().manual_seed(4)
+    cond, force = _positive_stiffness_cond(gen), torch.randn(6, 12, 6, generator=gen)
+    model = DCM(net=dict(TINY_NET), diffusion_steps=10, input_scaling="signal", sampler="ddim", sampling_steps=2)
+    model.fit_normalizers(cond, force)
+    model.eval()
+    inputs = [cond[..., i:i + 6].numpy() for i in range(0, 24, 6)]
+    predictions = {}
+    for precision in ("float32", "bfloat16"):
+        assert model.set_precision(precision) == precision
+        predictions[precision] = model.predict_forces(*inputs, n_samples=2, generator=torch.Generator().manual_seed(0))
+    for full, low in zip(predictions["float32"], predictions["bfloat16"]):
+        assert low.dtype == np.float32
+        np.testing.assert_allclose(low, full, atol=0.05 * (np.abs(full).max() + 1e-6))
+    assert model.set_precision("auto") == ("bfloat16" if native_bfloat16("cpu") else "float32")
+    with pytest.raises(ModelInputError, match="precision"):
+        model.set_precision("float16")

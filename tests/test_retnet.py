@@ -72,3 +72,33 @@ def test_streaming_refuses_bidirectional() -> None:
     net = RetNet(32, 1, 4, bidirectional=True)
     with pytest.raises(RuntimeError, match="causal"):
         net.init_state(1, torch.device("cpu"), torch.float32)
+
+
+@pytest.mark.parametrize("chunk", [1, 8, 41, 64])
+def test_msr_chunkwise_equals_parallel(chunk: int) -> None:
+    """Chunks that divide the sequence or not, one token per chunk, one chunk for all: the parallel outputs."""
+    torch.manual_seed(1)
+    msr = MultiScaleRetention(32, n_heads=4).double()
+    _boost_qk(msr)
+    x = torch.randn(3, 41, 32, dtype=torch.float64)
+    assert torch.allclose(msr.forward_chunkwise(x, chunk), msr(x), atol=TOL, rtol=0)
+
+
+@pytest.mark.parametrize("bidirectional", [False, True])
+def test_predictions_use_the_chunkwise_form_and_match_training_outputs(bidirectional: bool) -> None:
+    torch.manual_seed(2)
+    net = RetNetScoreNet(cond_dim=5, out_dim=3, d_model=32, n_layers=2, n_heads=4, bidirectional=bidirectional)
+    net = net.double()
+    _boost_qk(net)
+    cond, noisy, step = torch.randn(2, 130, 5, dtype=torch.float64), torch.randn(2, 130, 3, dtype=torch.float64), 3
+    trained = net(cond, noisy, torch.full((2,), step))
+    calls = []
+    original = MultiScaleRetention.forward_chunkwise
+    try:
+        MultiScaleRetention.forward_chunkwise = lambda self, x, c: calls.append(c) or original(self, x, c)
+        with torch.inference_mode():
+            predicted = net(cond, noisy, torch.full((2,), step))
+    finally:
+        MultiScaleRetention.forward_chunkwise = original
+    assert calls and set(calls) == {MultiScaleRetention.CHUNK_STEPS}
+    assert torch.allclose(predicted, trained, atol=1e-9, rtol=0)

@@ -30,6 +30,7 @@ def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int, *extr
         return compose("tune", overrides=[
             f"ckpt={ckpt}", f"demo_file={demo}", "embodiment=tool", f"out_dir={out_dir}",
             f"robot_free.n_trials={robot_free_trials}", "robot_free.batch_size=8", "robot_free.n_validate=3",
+            "robot_free.sampling_steps=5",  # DDIM steps must divide the tiny checkpoint's T = 5
             "robot_based.n_trials=5", "search.options.n_startup_trials=4", *extra,
         ])
 
@@ -87,6 +88,23 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
         np.testing.assert_array_equal(TrialLog.load(tmp_path / name / "robot_free_trials.npz").arrays()[1],
                                       TrialLog.load(out_dir / "robot_free_trials.npz").arrays()[1])
     assert uninterrupted[0]["predictor"]["sampler"] == "ddpm" and uninterrupted[0]["predictor"]["T"] == 5
+
+
+@pytest.mark.parametrize("precision", ["auto", "bfloat16"])
+def test_the_default_robot_free_search_gives_the_same_results_for_the_same_seed(tiny_checkpoint: Path,
+                                                                               tmp_path: Path, precision: str):
+    """conf/tune.yaml's robot-free defaults (a few DDIM steps, one MOTPE fit per batch, bfloat16 where native)
+    give the same results.json for the same seed, and a killed-and-resumed run those of an uninterrupted one."""
+    demo = _short_demo(tmp_path)
+    extra = (f"robot_free.precision={precision}", "robot_based.n_trials=0")
+    runs = [tune(_config(tiny_checkpoint, demo, tmp_path / name, 24, *extra), tmp_path / name) for name in "ab"]
+    assert _numbers(runs[0]) == _numbers(runs[1])
+    assert runs[0]["predictor"]["sampling_steps"] == 5
+    if precision == "bfloat16":
+        assert runs[0]["predictor"]["precision"] == "bfloat16"
+    tune(_config(tiny_checkpoint, demo, tmp_path / "resumed", 16, *extra), tmp_path / "resumed")
+    resumed = tune(_config(tiny_checkpoint, demo, tmp_path / "resumed", 24, *extra), tmp_path / "resumed")
+    assert _numbers(resumed) == _numbers(runs[0])
 
 
 def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny_checkpoint: Path, tmp_path: Path):
@@ -147,7 +165,7 @@ def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoin
     demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
     small = ["robot_based.n_trials=0"]
     first = tune(_config(tiny_checkpoint, demo, out_dir, 8, *small), out_dir)
-    assert first["predictor"]["sampler"] == "ddim" and first["predictor"]["sampling_steps"] == 5  # the default
+    assert first["predictor"]["sampler"] == "ddim" and first["predictor"]["sampling_steps"] == 5
     # another checkpoint: the same model with one weight changed (as a baseline's file would differ)
     other_ckpt = tmp_path / "other.ckpt"
     saved = torch.load(tiny_checkpoint, map_location="cpu", weights_only=True)
@@ -309,7 +327,8 @@ def test_a_prior_blends_the_tuners_model_with_the_stiffness_ridge(tiny_checkpoin
               np.repeat(recorded.force_demo[None], len(phases), axis=0),
               np.stack([simulator.attractor(recorded, k) for k in stiffness]), stiffness)
     model = load_model(tiny_checkpoint)
-    use_sampler(model, "ddim", 5)
+    use_sampler(model, "ddim", 5)  # as _config samples
+    model.set_precision("auto")
     blend = with_prior(model, ref, 0.5, "test")
     assert blend.combine(np.array([4.0]), np.array([1.0])) == pytest.approx([2.0])  # the geometric mean
     first = 8  # robot_free.batch_size: the first batch, seeded as the tuner seeds it

@@ -46,18 +46,21 @@ def attractor_from_demo(
     ``stiffness`` must be what the controller applies (after filtering), and ``mass`` the damping's mass
     (``damping_from_stiffness``); otherwise the attractor jumps while the gains lag and every stiffness
     change produces a force spike. Velocities and accelerations come from central finite differences.
+    ``stiffness`` may be a batch (B, H, 6) of schedules for the one demo: the demo's derivatives are then
+    computed once, and each schedule's attractor is the one a call of its own returns.
     """
     x_demo = np.asarray(x_demo, dtype=np.float64)
     force_demo = np.asarray(force_demo, dtype=np.float64)
     stiffness = np.asarray(stiffness, dtype=np.float64)
-    if not (x_demo.shape == force_demo.shape == stiffness.shape) or x_demo.ndim != 2 or x_demo.shape[1] != 6:
+    if (not (x_demo.shape == force_demo.shape == stiffness.shape[-2:]) or x_demo.ndim != 2 or x_demo.shape[1] != 6
+            or stiffness.ndim not in (2, 3)):
         raise ValueError(
-            f"attractor_from_demo needs x_demo, force_demo and stiffness of shape (H, 6); got "
-            f"{x_demo.shape}, {force_demo.shape}, {stiffness.shape}"
+            f"attractor_from_demo needs x_demo and force_demo of shape (H, 6) and stiffness (H, 6) or (B, H, 6); "
+            f"got {x_demo.shape}, {force_demo.shape}, {stiffness.shape}"
         )
     if np.any(stiffness <= 0):
-        t, axis = np.argwhere(stiffness <= 0)[0]
-        raise StiffnessOutOfRange(f"stiffness must be positive; K[{t}, {AXES[axis]}] = {stiffness[t, axis]}")
+        where = tuple(np.argwhere(stiffness <= 0)[0])
+        raise StiffnessOutOfRange(f"stiffness must be positive; K[{where[-2]}, {AXES[where[-1]]}] = {stiffness[where]}")
     velocity = np.gradient(x_demo, dt, axis=0)
     acceleration = np.gradient(velocity, dt, axis=0)
     damping = damping_from_stiffness(stiffness, mass)
@@ -126,6 +129,7 @@ class StiffnessFilter:
 def filter_schedule(
     stiffness: np.ndarray, dt: float, tau_s: float = 0.2, max_rate: float | None = None
 ) -> np.ndarray:
-    """The stiffness the controller actually applies at each step of a commanded schedule (H, 6)."""
+    """The stiffness the controller actually applies at each step of a commanded schedule (H, 6), or of each
+    schedule of a batch (B, H, 6) at once."""
     flt = StiffnessFilter(tau_s=tau_s, dt=dt, max_rate=max_rate)
-    return np.stack([flt.step(k) for k in np.asarray(stiffness, dtype=np.float64)])
+    return np.stack([flt.step(k) for k in np.moveaxis(np.asarray(stiffness, dtype=np.float64), -2, 0)], axis=-2)

@@ -59,7 +59,11 @@ class DCM(ForceModel):
 
     def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
                           generator: torch.Generator | None = None) -> torch.Tensor:
-        net_in = diffusion.scale_noisy_input(self.inference_net, self.sample_scheduler, self.cfg.input_scaling)
+        scaled = diffusion.scale_noisy_input(self.inference_net, self.sample_scheduler, self.cfg.input_scaling)
+
+        def net_in(cond: torch.Tensor, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            return scaled(cond, x, t).float()  # under a bfloat16 autocast, the sampler's steps stay in float32
+
         return diffusion.sample_many(net_in, cond_n, OUT_DIM, self.sample_scheduler, n_samples,
                                      num_inference_steps=self.cfg.sampling_steps, generator=generator)
 

@@ -139,6 +139,8 @@ def describe(predictor: Any, n_samples: int | None = None) -> dict[str, Any]:
             "net": predictor.cfg.net.get("name"),
             # named only when it is not the default, so a log of the default's fingerprint does not depend on it
             **({"task_loss": predictor.cfg.task_loss} if is_dcm and predictor.cfg.task_loss != "of_mean" else {}),
+            **({"precision": predictor.inference_precision}
+               if getattr(predictor, "inference_precision", "float32") != "float32" else {}),
         }
     if isinstance(predictor, PriorBlend):
         return {**describe(predictor.model, n_samples), **predictor.describe()}

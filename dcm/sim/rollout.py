@@ -301,9 +301,9 @@ class Simulator:
         return offset, factor
 
     def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
-        """The attractor (H, 6) a rollout of the commanded ``stiffness`` uses: the paper's equation with the
-        applied (filtered) K, the controller's damping and the embodiment's nominal Cartesian inertia.
-        Robot-free tuning calls this to build model inputs."""
+        """The attractor (H, 6) a rollout of the commanded ``stiffness`` (H, 6) uses: the paper's equation with
+        the applied (filtered) K, the controller's damping and the embodiment's nominal Cartesian inertia.
+        Robot-free tuning calls this to build model inputs, for a batch of schedules (B, H, 6) at once."""
         return self._attractor(demo, filter_schedule(stiffness, self.dt, tau_s=self.stiffness_tau_s))
 
     def _attractor(self, demo: Demo, applied: np.ndarray) -> np.ndarray:

@@ -47,7 +47,12 @@ def main(cfg: DictConfig) -> None:
               f"mean |error| {prediction['L_task_mae_N']:.3g} N, {verdict} {prediction['limit_N']:.3g} N "
               f"({prediction['limit_source']})")
     if robot["hypervolume"] is not None:
-        print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s, "
+        # Per trial, as both searches ran in this invocation (a resumed run replays logged trials at no cost).
+        virtual_s = free["seconds"] / free["n_virtual_trials"]
+        simulated_s = robot["seconds"] / max(robot["n_trials"], 1)
+        ratio = (f" ({simulated_s / virtual_s:.0f}x the time of a virtual trial)"
+                 if virtual_s > 0 and simulated_s > 0 else "")
+        print(f"robot-based: {robot['n_trials']} simulated trials in {robot['seconds']:.1f} s{ratio}, "
               f"hypervolume {robot['hypervolume']:.4g}")
     out = Path(cfg.out_dir)
     print(f"results: {out / 'results.json'}")

@@ -40,6 +40,10 @@ class Skill:
         return np.stack([schedule_from_phases(p, self.boundaries, self.rot_Nmprad) for p in proposals])
 
 
+# Rows (proposals × diffusion samples) per predictor call on a CPU; see ModelObjective.calls.
+CPU_ROWS_PER_CALL = 64
+
+
 def batch_seed(seed: int, first_trial: int) -> int:
     """The torch seed of the model samples of the batch that starts at trial ``first_trial`` of a run seeded
     ``seed``: a function of the two alone, so a resumed run draws the same noise for its later batches as an
@@ -60,7 +64,7 @@ class ModelObjective:
     def __init__(self, model: Any, skill: Skill, attractor: Any, n_samples: int = 1, seed: int = 0):
         self.model = model
         self.skill = skill
-        self.attractor = attractor  # callable (H, 6) stiffness -> (H, 6) attractor, as the simulator computes it
+        self.attractor = attractor  # (B, H, 6) stiffness -> (B, H, 6) attractors, as the simulator computes them
         self.n_samples = n_samples
         self.seed = int(seed)
         self.seconds_inputs = 0.0
@@ -75,10 +79,20 @@ class ModelObjective:
 
         return torch.Generator(device=self.model.device).manual_seed(batch_seed(self.seed, first_trial))
 
+    def calls(self, batch: int) -> list[slice]:
+        """How a batch of ``batch`` proposals is split into predictor calls: on a CPU, into calls of at most
+        :data:`CPU_ROWS_PER_CALL` rows (proposals × samples), since a score net's activations for many rows at
+        once outgrow the caches and every row costs more; elsewhere one call."""
+        device = getattr(self.model, "device", None)
+        if device is None or getattr(device, "type", str(device)) != "cpu":
+            return [slice(0, batch)]
+        step = max(1, CPU_ROWS_PER_CALL // max(1, int(self.n_samples or 1)))
+        return [slice(i, min(i + step, batch)) for i in range(0, batch, step)]
+
     def inputs(self, proposals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Raw predictor inputs (x_demo, F_demo, x_attr, K), each (B, H, 6), for (B, P, 3) proposals."""
         stiffness = self.skill.schedules(proposals)
-        x_attr = np.stack([self.attractor(k) for k in stiffness])
+        x_attr = np.asarray(self.attractor(stiffness))  # the whole batch at once
         batch = len(proposals)
         x_demo = np.repeat(self.skill.x_demo[None], batch, axis=0)
         force_demo = np.repeat(self.skill.force_demo[None], batch, axis=0)
@@ -100,12 +114,16 @@ class ModelObjective:
         from dcm.models.predict import predict_task_loss  # torch-heavy: only when a model is used
 
         t0 = time.perf_counter()
-        x_demo, force_demo, x_attr, stiffness = self.inputs(proposals)
+        inputs = self.inputs(proposals)
         t1 = time.perf_counter()
+        generator = self.generator(first_trial)  # one stream for the batch, drawn call after call
         with _inference_mode():
-            L_task = predict_task_loss(self.model, x_demo, force_demo, x_attr, stiffness, n_samples=self.n_samples,
-                                       generator=self.generator(first_trial), from_step=self.skill.task_from_step)
+            L_task = np.concatenate([
+                predict_task_loss(self.model, *(a[part] for a in inputs), n_samples=self.n_samples,
+                                  generator=generator, from_step=self.skill.task_from_step)
+                for part in self.calls(len(proposals))])
         t2 = time.perf_counter()
+        stiffness = inputs[3]
         self.seconds_inputs += t1 - t0
         self.seconds_model += t2 - t1
         return np.stack([L_task, compliance_loss(stiffness)], axis=1)

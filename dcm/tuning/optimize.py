@@ -112,6 +112,14 @@ def resumable_log(path: Path | None, fingerprint: Mapping[str, Any] | None, over
                            "(hydra.run.dir=...) or overwrite=true to discard them")
 
 
+def ask_batch(search: StiffnessSearch, count: int) -> np.ndarray:
+    """``count`` proposals (count, P, 3) evaluated together: from one fit where the strategy plans batches
+    (``ask_batch``, e.g. batched MOTPE), else one ask after another."""
+    if hasattr(search, "ask_batch"):
+        return np.asarray(search.ask_batch(count))
+    return np.stack([search.ask() for _ in range(count)])
+
+
 def _tell(search: StiffnessSearch, objectives: np.ndarray) -> None:
     search.tell(None if np.isnan(objectives).any() else (float(objectives[0]), float(objectives[1])))
 
@@ -165,7 +173,7 @@ def optimize(
     # Replay in the batches the trials were asked in: a batch's later proposals depend on its pending ones.
     for first in range(0, len(previous), batch_size):
         logged = slice(first, min(first + batch_size, len(previous)))
-        proposals = [search.ask() for _ in range(logged.stop - logged.start)]
+        proposals = ask_batch(search, logged.stop - logged.start)
         for i, proposal in enumerate(proposals, start=first):
             if not np.allclose(proposal, previous.phase_stiffness[i]):
                 raise TrialLogMismatch(
@@ -181,7 +189,7 @@ def optimize(
         while len(log) < n_trials:
             count = min(batch_size, n_trials - len(log))
             t0 = time.perf_counter()
-            proposals = np.stack([search.ask() for _ in range(count)])
+            proposals = ask_batch(search, count)
             t1 = time.perf_counter()
             outcomes = np.asarray(evaluate(proposals, len(log)), dtype=np.float64).reshape(count, 2)
             t2 = time.perf_counter()

@@ -114,8 +114,8 @@ def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | No
 def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
     """The predictor of ``cfg.ckpt`` as the robot-free search uses it: checked against the skill (warning when
     its demo is recorded otherwise than the predictor's training demos), with ``robot_free``'s sampler, sampling
-    steps and task loss, and blended with the stiffness ridge ``prior`` at ``prior_weight`` when one is given
-    (:mod:`dcm.models.prior_blend`)."""
+    steps, precision and task loss, and blended with the stiffness ridge ``prior`` at ``prior_weight`` when one is
+    given (:mod:`dcm.models.prior_blend`)."""
     from dcm.models.predict import load_model, with_prior
 
     model = load_model(cfg.ckpt, map_location=device)
@@ -123,6 +123,11 @@ def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
     if (mismatch := recording_mismatch(cfg.ckpt, spec, cfg.control_hz)) is not None:
         warnings.warn(mismatch, DemoRecordingWarning, stacklevel=3)
     use_sampler(model, cfg.robot_free.get("sampler"), cfg.robot_free.get("sampling_steps"))
+    if cfg.robot_free.get("precision") is not None and hasattr(model, "set_precision"):  # force models
+        try:
+            model.set_precision(cfg.robot_free.precision)
+        except ValueError as err:
+            raise TuneConfigError(f"robot_free.precision: {err}") from None
     if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
         model.set_task_loss(cfg.robot_free.task_loss)
     if cfg.get("prior"):
@@ -169,11 +174,22 @@ def fingerprints(cfg: Any, spec: Any, domain: Any, model: Any, device: Any) -> d
     if cfg.get("prior"):  # only when set: the trial logs of runs without a prior keep their fingerprint
         sampling["prior_sha256"] = file_sha256(cfg.prior)
         sampling.pop("prior", None)  # its content counts, not where it lies
-    free = {**robot, "predictor_sha256": file_sha256(cfg.ckpt), "predictor": sampling,
+    free = {**robot, "search": {**robot["search"], "options": free_search_options(cfg)},
+            "predictor_sha256": file_sha256(cfg.ckpt), "predictor": sampling,
             "n_samples": int(cfg.robot_free.n_samples), "batch_size": int(cfg.robot_free.batch_size),
             "device": getattr(device, "type", str(device))}
     plain = lambda d: json.loads(json.dumps(d, default=_jsonable))  # noqa: E731 - what a log stores and reloads
     return {"skill": plain(skill), "robot_based": plain(robot), "robot_free": plain(free)}
+
+
+def free_search_options(cfg: Any) -> dict[str, Any]:
+    """The robot-free search's options: ``search.options``, and with ``robot_free.batched_search`` (MOTPE only)
+    one optimiser fit per batch of ``robot_free.batch_size`` proposals, so that 1,000 virtual trials do not
+    cost more in the optimiser than in the model (:mod:`dcm.search.motpe`)."""
+    options = to_container(cfg.search.options) or {}
+    if cfg.search.name == "motpe" and cfg.robot_free.get("batched_search", False):
+        options["batched"] = True
+    return options
 
 
 def _jsonable(value: Any) -> Any:
@@ -272,9 +288,10 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     reference = np.array([reference_info["L_task_N"], reference_info["L_comp_kNpm"]])
 
     def search_loop(evaluate: Any, n_trials: int, batch_size: int, path: Path, fingerprint: dict, desc: str,
-                    times: LoopTimes, log_notes: dict | None = None) -> TrialLog:
+                    times: LoopTimes, log_notes: dict | None = None, options: dict | None = None) -> TrialLog:
         def run() -> TrialLog:
-            search = make_search(cfg.search.name, space, cfg.seed, **(to_container(cfg.search.options) or {}))
+            search = make_search(cfg.search.name, space, cfg.seed,
+                                 **(options if options is not None else to_container(cfg.search.options) or {}))
             return optimize(search, evaluate, n_trials, batch_size, path, desc=desc, fingerprint=fingerprint,
                             overwrite=overwrite, notes=log_notes, times=times)
 
@@ -291,7 +308,7 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     conditioning = check_conditioning(model, model_objective, space)
     free_times = LoopTimes()
     free_log = search_loop(model_objective, cfg.robot_free.n_trials, cfg.robot_free.batch_size, free_path,
-                           prints["robot_free"], "robot-free (model)", free_times, notes)
+                           prints["robot_free"], "robot-free (model)", free_times, notes, free_search_options(cfg))
     free_params, free_predicted = free_log.arrays()
 
     n_validate, rollouts = cfg.robot_free.n_validate, cfg.validation_rollouts

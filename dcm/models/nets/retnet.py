@@ -9,7 +9,10 @@ group-normed, gated by swish(X W_G) and projected back.
 The parallel form (an (H x H) decay mask) trains fast; the recurrent form keeps a per-head state
 S_n = gamma S_{n-1} + k_n^T v_n and gives identical outputs one step at a time. Both normalisers above
 are linear in k (the signed sum q_n . z_n with z_n = gamma z_{n-1} + k_n), which is what makes the
-recurrent form exact rather than approximate. The existing libraries (torchscale, yet-another-retnet)
+recurrent form exact rather than approximate. The chunkwise form (the paper's third) mixes the two: the
+parallel form inside chunks of ``CHUNK_STEPS`` tokens, the recurrent state across them. It gives the same
+outputs with far less work on the (H x H) scores, so predictions (no gradient) use it; training keeps the
+parallel form. The existing libraries (torchscale, yet-another-retnet)
 pin old dependencies or are unmaintained, hence this self-contained version.
 
 Bidirectional option: a forward causal MSR plus a second causal MSR run on the time-reversed sequence,
@@ -38,7 +41,11 @@ def _rotate(x: torch.Tensor, pos: torch.Tensor, inv_freq: torch.Tensor) -> torch
 
 
 class MultiScaleRetention(nn.Module):
-    """Causal multi-scale retention with parallel (`forward`) and recurrent (`step`) forms."""
+    """Causal multi-scale retention with parallel (`forward`), chunkwise and recurrent (`step`) forms."""
+
+    # Tokens per chunk of the chunkwise form: small enough that the per-chunk scores stay in cache, large enough
+    # that the products between chunks and states are few.
+    CHUNK_STEPS = 48
 
     def __init__(self, d_model: int, n_heads: int = 4, value_factor: int = 1, gn_eps: float = 1e-5) -> None:
         super().__init__()
@@ -88,13 +95,58 @@ class MultiScaleRetention(nn.Module):
         return D / D.sum(dim=-1, keepdim=True).sqrt()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Parallel form: (B,L,d) -> (B,L,d)."""
+        """Parallel form: (B,L,d) -> (B,L,d); the chunkwise form when no gradient is recorded (predictions)."""
         L = x.shape[1]
+        if L > self.CHUNK_STEPS and not torch.is_grad_enabled():
+            return self.forward_chunkwise(x, self.CHUNK_STEPS)
         q, k, v, g = self._qkvg(x, torch.arange(L, device=x.device))
         qk = (q @ k.transpose(-1, -2)).mul_(self.decay_mask(L, x.device, x.dtype))  # matmul keeps no output for backward
         # Dividing the (L x dv) result instead of the (L x L) scores: same numbers, one pass less over L^2.
         denom = qk.detach().sum(dim=-1, keepdim=True).abs().clamp(min=1.0)
         return self._output(g, (qk @ v) / denom)
+
+    def forward_chunkwise(self, x: torch.Tensor, chunk: int) -> torch.Tensor:
+        """Chunkwise form: (B,L,d) -> (B,L,d), the parallel form's outputs.
+
+        Per head, with n = i*C + a in chunk i and the state of all tokens before chunk i,
+        S_i = sum_{m < iC} gamma^(iC-1-m) k_m^T v_m and z_i = sum_{m < iC} gamma^(iC-1-m) k_m:
+        numerator_n = sum_{m in chunk i, m <= n} (q_n . k_m) gamma^(n-m) v_m + gamma^(a+1) q_n S_i, and the
+        normaliser's sum likewise with z_i; both are then divided by sqrt(c_n) as in the parallel form.
+        """
+        B, L, _ = x.shape
+        q, k, v, g = self._qkvg(x, torch.arange(L, device=x.device))
+        n_chunks = -(-L // chunk)
+        if n_chunks * chunk > L:  # zero tokens at the end change nothing before them
+            q, k, v = (F.pad(t, (0, 0, 0, n_chunks * chunk - L)) for t in (q, k, v))
+        q, k, v = (t.reshape(B, self.n_heads, n_chunks, chunk, -1) for t in (q, k, v))
+        log_g = self.log_gamma.to(device=x.device, dtype=torch.float64)[:, None]  # (h, 1)
+        a = torch.arange(chunk, device=x.device, dtype=torch.float64)
+        diff = a[:, None] - a[None, :]
+        zero = torch.zeros((), dtype=diff.dtype, device=x.device)
+        inner = torch.where(diff >= 0, torch.exp(diff.clamp(min=0) * log_g[..., None]), zero)  # (h,C,C)
+        qk = q @ k.transpose(-1, -2)  # (B,h,N,C,C)
+        qk = qk * inner[:, None].to(qk.dtype)
+        numerator, normaliser = qk @ v, qk.sum(dim=-1, keepdim=True)
+        # Each chunk's own contribution to the state, then the states before every chunk, chunk by chunk.
+        k_in = k * torch.exp((chunk - 1 - a) * log_g)[:, None, :, None].to(k.dtype)
+        own_S, own_z = k_in.transpose(-1, -2) @ v, k_in.sum(dim=-2)  # (B,h,N,dk,dv), (B,h,N,dk)
+        carry = torch.exp(chunk * log_g).to(own_S.dtype)  # (h, 1): gamma^C
+        S, z = torch.zeros_like(own_S[:, :, 0]), torch.zeros_like(own_z[:, :, 0])
+        states_S, states_z = [], []
+        for i in range(n_chunks):
+            states_S.append(S)
+            states_z.append(z)
+            S = carry[..., None] * S + own_S[:, :, i]
+            z = carry * z + own_z[:, :, i]
+        q_out = q * torch.exp((a + 1) * log_g)[:, None, :, None].to(q.dtype)  # gamma^(a+1) q_n
+        numerator = numerator + q_out @ torch.stack(states_S, dim=2)
+        normaliser = normaliser + (q_out * torch.stack(states_z, dim=2)[:, :, :, None, :]).sum(dim=-1, keepdim=True)
+        # c_n = sum_{m <= n} gamma^(n-m) = (1 - gamma^(n+1)) / (1 - gamma)
+        steps = torch.arange(n_chunks * chunk, device=x.device, dtype=torch.float64)
+        root_c = ((1 - torch.exp((steps + 1) * log_g)) / -torch.expm1(log_g)).sqrt()
+        root_c = root_c.reshape(1, self.n_heads, n_chunks, chunk, 1).to(numerator.dtype)
+        ret = (numerator / root_c) / (normaliser / root_c).abs().clamp(min=1.0)
+        return self._output(g, ret.reshape(B, self.n_heads, n_chunks * chunk, -1)[:, :, :L])
 
     def init_state(self, batch: int, device: torch.device, dtype: torch.dtype) -> RetState:
         h = self.n_heads

@@ -26,6 +26,7 @@ def _tune(ckpt: Path, tmp_path: Path, name: str, *extra: str) -> tuple[Path, dic
         cfg = compose("tune", overrides=[
             f"ckpt={ckpt}", f"demo_file={demo}", "embodiment=tool", f"out_dir={out_dir}", "robot_free.n_trials=8",
             "robot_free.batch_size=8", "robot_free.n_validate=3", "robot_based.n_trials=5",
+            "robot_free.sampling_steps=5",  # DDIM steps must divide the tiny checkpoint's T = 5
             "search.options.n_startup_trials=4", *extra])
     return out_dir, tune(cfg, out_dir)
 
