@@ -24,6 +24,7 @@ rollout: install
 	$(BIN)/python -m dcm.sim.render --out docs/demo_rollout.png
 
 test: install
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest tests studies
 
 bench: install
@@ -37,13 +38,13 @@ bench: install
 # force has converged.
 acceptance: install
 	test -f data/test_wavelike.h5 || $(BIN)/python -m dcm.data.generate dataset=sim "skills=[wavelike]" out=data/test_wavelike.h5
-	test -f data/acceptance.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance
+	test -f data/acceptance.h5 || $(BIN)/python -m dcm.data.generate --config-dir studies/conf dataset=acceptance
 	test -f data/test_wavelike_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact "skills=[wavelike]" out=data/test_wavelike_contact.h5
 	test -f data/test_line_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact "skills=[line]" out=data/test_line_contact.h5
-	test -f data/acceptance_contact.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true out=data/acceptance_contact.h5
-	test -f data/test_wavelike_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact_fine "skills=[wavelike]" out=data/test_wavelike_fine.h5
-	test -f data/test_line_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=diverse_contact_fine "skills=[line]" out=data/test_line_fine.h5
-	test -f data/acceptance_fine.h5 || $(BIN)/python -m dcm.data.generate dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true +dataset.bowl.hfield_res=192 out=data/acceptance_fine.h5
+	test -f data/acceptance_contact.h5 || $(BIN)/python -m dcm.data.generate --config-dir studies/conf dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true out=data/acceptance_contact.h5
+	test -f data/test_wavelike_fine.h5 || $(BIN)/python -m dcm.data.generate --config-dir studies/conf dataset=diverse_contact_fine "skills=[wavelike]" out=data/test_wavelike_fine.h5
+	test -f data/test_line_fine.h5 || $(BIN)/python -m dcm.data.generate --config-dir studies/conf dataset=diverse_contact_fine "skills=[line]" out=data/test_line_fine.h5
+	test -f data/acceptance_fine.h5 || $(BIN)/python -m dcm.data.generate --config-dir studies/conf dataset=acceptance dataset.duration_s=12.0 +dataset.demo_lead=true +dataset.bowl.hfield_res=192 out=data/acceptance_fine.h5
 	$(BIN)/python -m studies.acceptance.acceptance
 
 # One command per model study (studies/conf/experiment/<name>.yaml; cost in its header), e.g.

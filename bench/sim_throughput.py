@@ -36,7 +36,7 @@ class Clock:
         self.wall = 0.0
         self.cpu = 0.0
 
-    def __enter__(self) -> "Clock":
+    def __enter__(self) -> Clock:
         self._w, self._c = time.perf_counter(), time.process_time()
         return self
 

@@ -19,8 +19,9 @@ import logging
 import math
 import os
 import sys
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the Hydra configs of the entry points
 DEVICE_CHOICES = "auto, cpu, cuda, cuda:<index> or mps"
@@ -37,7 +38,7 @@ class JSONFileError(ValueError):
     """A JSON file that cannot be read or parsed; names the file, line and column."""
 
 
-def resolve_device(name: str, option: str = "device") -> "Any":
+def resolve_device(name: str, option: str = "device") -> Any:
     """The ``torch.device`` for a setting (``auto``: cuda, else mps, else cpu).
 
     ``option`` is the setting's name as the user types it (``device``, ``trainer.accelerator`` ...) and appears

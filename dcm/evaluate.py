@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from dcm.control.objectives import task_loss, task_window_start
 from dcm.cli import quiet_libraries, resolve_device
+from dcm.control.objectives import task_loss, task_window_start
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
@@ -213,5 +213,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     return result
 
 
-if __name__ == "__main__":
+def cli() -> None:
+    """Console script ``dcm-evaluate``: as :func:`main`, exit status 0 (a script's return value is its status)."""
     main()
+
+
+if __name__ == "__main__":
+    cli()

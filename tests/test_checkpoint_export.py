@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from dcm import __version__
-from dcm.models.configuration import CheckpointIncompatibleError, CheckpointVersionWarning
 from dcm.models.checkpoint import VERSION_KEY, checkpoint_card
+from dcm.models.configuration import CheckpointIncompatibleError, CheckpointVersionWarning
 from dcm.models.predict import load_model
 from dcm.training.export import main
 

@@ -6,8 +6,9 @@ from __future__ import annotations
 import os
 import pathlib
 import pickle
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import pytest
 import torch
@@ -80,7 +81,7 @@ def test_the_checkpoint_reader_refuses_a_file_that_would_run_code(crafted: tuple
     assert message.startswith(f"{path}: not a plain-data dcm checkpoint (would unpickle ")
     assert message.endswith("); refusing to load it")
     for read in (checkpoint_card, checkpoint_kind, trained_on):  # the card and kind, as tune.py and train.py read them
-        _refuses(lambda: read(path), path, marker, CheckpointUnsafeError)
+        _refuses(lambda read=read: read(path), path, marker, CheckpointUnsafeError)
 
 
 def test_the_reader_names_what_the_file_would_call(tmp_path: Path) -> None:

@@ -7,12 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from test_models_synthetic import write_synthetic_dataset
 
 from dcm.data.datamodule import DataModuleError, DCMDataModule
-from dcm.data.schema import DatasetError, load_dataset, write_dataset
-from dcm.data.schema import cond_channel_names, target_channel_names
+from dcm.data.schema import DatasetError, cond_channel_names, load_dataset, target_channel_names, write_dataset
 from dcm.models.normalizer import ChannelNormalizer
-from test_models_synthetic import write_synthetic_dataset
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from test_models_synthetic import write_synthetic_dataset
 
 from dcm.data.datamodule import DCMDataModule
 from dcm.evaluate import evaluate
@@ -17,7 +18,6 @@ from dcm.models.baseline import Baseline
 from dcm.models.configuration import CheckpointKindError, DatasetMismatchError, DataSpec, ModelInputError
 from dcm.models.dcm import DCM
 from dcm.models.predict import load_model
-from test_models_synthetic import write_synthetic_dataset
 
 TINY_NET = {"name": "retnet", "d_model": 32, "n_layers": 1, "n_heads": 2}
 REPO = Path(__file__).resolve().parents[1]

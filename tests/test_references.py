@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import train_tiny
+from test_models_synthetic import write_synthetic_dataset
 
 from dcm.control import equal_time_phases, filter_schedule, schedule_from_phases
 from dcm.data.schema import load_dataset
@@ -20,8 +22,6 @@ from dcm.models.predict import load_model, predict_task_loss
 from dcm.models.references import CopyDemo, ReferenceError, StiffnessRegression, load_reference
 from dcm.models.references import main as references_main
 from dcm.models.stiffness_features import StiffnessScheduleError, feature_names, features, phase_values
-from conftest import train_tiny
-from test_models_synthetic import write_synthetic_dataset
 
 
 # ----------------------------------------------------------------------------------------------- phase values

@@ -56,7 +56,8 @@ def test_batched_search_moves_towards_the_front():
             search.tell(two_objectives(k))
     late = search.ask_batch(50)
     random = np.random.default_rng(0).uniform(100.0, 1500.0, late.shape)
-    uneven = lambda k: np.median(np.abs(k[..., 0] - k[..., 1]))
+    def uneven(k):
+        return np.median(np.abs(k[..., 0] - k[..., 1]))
     assert uneven(late) < 0.7 * uneven(random)
 
 

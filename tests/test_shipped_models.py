@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from dcm.data.recording import Recording, file_recording, preset_recording, recording
-from dcm.models.configuration import CheckpointVersionWarning
 from dcm.models.checkpoint import card_markdown, checkpoint_card
+from dcm.models.configuration import CheckpointVersionWarning
 from dcm.models.predict import load_model, predict_task_loss, trained_on
 
 MODELS = Path(__file__).resolve().parents[1] / "models"

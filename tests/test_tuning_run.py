@@ -17,9 +17,9 @@ from omegaconf import OmegaConf
 from dcm.models.checkpoint import CARD_KEY, checkpoint_card, read_checkpoint
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
+from dcm.tuning.checks import TuneConfigError, check_config, recording_mismatch
 from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
-from dcm.tuning.checks import TuneConfigError, check_config, recording_mismatch
 from dcm.tuning.run import record_skill, tune, use_sampler
 
 REPO = Path(__file__).resolve().parents[1]

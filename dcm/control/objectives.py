@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-
 # how k force samples give a predicted L_task: of their mean force, or over the samples (spread included)
 TASK_LOSSES = ("of_mean", "over_samples")
 

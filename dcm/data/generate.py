@@ -42,7 +42,7 @@ from dcm.data.generate_checks import (GenerationError, build_settings, check_dem
 from dcm.data.generate_workers import (claim_work_dir, finished_jobs, job_fingerprints, mark_work_dir,
                                        part_files_in, release_work_dir, run_jobs)
 from dcm.data.merge import MergeError, assemble, part_path
-from dcm.data.presets import PresetError, fingerprint, plan_demos
+from dcm.data.presets import PresetError, compose_config, fingerprint, plan_demos
 from dcm.data.schema import DatasetError
 from dcm.search import check_budget
 from dcm.sim.domain import DomainSpec
@@ -144,21 +144,6 @@ def generate(cfg: Any) -> Path:
     print(f"wrote {out}: {n} trajectories from {len(jobs)} demos ({len(pending)} generated now in {elapsed:.1f} s, "
           f"dcm {__version__})")
     return out
-
-
-def compose_config(preset: str, overrides: Sequence[str] = ()) -> Any:
-    """Compose ``conf/generate.yaml`` with ``dataset=<preset>`` outside of a Hydra app."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.initialize import get_gh_backup, restore_gh_from_backup
-
-    outer = get_gh_backup()  # e.g. train.py's own Hydra app: put it back afterwards
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(config_dir=str(CONF_DIR)):
-            return compose(config_name="generate", overrides=[f"dataset={preset}", *overrides])
-    finally:
-        restore_gh_from_backup(outer)
 
 
 def ensure_dataset(preset: str, path: str | Path | None = None, overrides: Sequence[str] = ()) -> Path:

@@ -16,6 +16,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from dcm.cli import CONF_DIR
+
 
 class PresetError(ValueError):
     """An invalid dataset preset; names the config key."""
@@ -197,3 +199,18 @@ def fingerprint(payload: Any) -> str:
     """A short stable hash of JSON-able settings; part files carry it so stale parts are detected."""
     text = json.dumps(payload, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def compose_config(preset: str, overrides: Sequence[str] = ()) -> Any:
+    """Compose ``conf/generate.yaml`` with ``dataset=<preset>`` outside of a Hydra app."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.initialize import get_gh_backup, restore_gh_from_backup
+
+    outer = get_gh_backup()  # e.g. train.py's own Hydra app: put it back afterwards
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR)):
+            return compose(config_name="generate", overrides=[f"dataset={preset}", *overrides])
+    finally:
+        restore_gh_from_backup(outer)

@@ -35,7 +35,8 @@ def recording(dataset_config: Mapping[str, Any]) -> Recording:
 
 def preset_recording(name: str | None) -> Recording | None:
     """The recording of the preset ``conf/dataset/<name>.yaml``; None when no preset has that name."""
-    from dcm.data.generate import CONF_DIR, compose_config
+    from dcm.cli import CONF_DIR
+    from dcm.data.presets import compose_config
 
     if not name or not (CONF_DIR / "dataset" / f"{name}.yaml").is_file():
         return None

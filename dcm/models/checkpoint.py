@@ -17,8 +17,9 @@ import pickle
 import re
 import sys
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import torch
 
@@ -179,7 +180,7 @@ def card_markdown(folder: str | Path) -> str:
     lines = ["# Shipped predictors", "",
              f"Written by `python -m dcm.models.checkpoint card {folder.name}/` from the files' own records. "
              "A checkpoint is the run's selected checkpoint (on the validation split), exported with "
-             "`python -m dcm.models.export <run_dir> <file>`.", "",
+             "`python -m dcm.training.export <run_dir> --out <file>`.", "",
              "| file | kind | trained on (plan fingerprint) | recipe | selected on |", "|---|---|---|---|---|"]
     lines += [_checkpoint_row(path) for path in sorted(folder.glob("*.ckpt"))]
     lines += [_reference_row(path) for path in sorted(folder.glob("*.json"))]

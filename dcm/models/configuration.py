@@ -8,8 +8,9 @@ a checkpoint therefore reloads with nothing but its own file.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any, Mapping
+from typing import Any
 
 from dcm.control.objectives import TASK_LOSSES
 from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; re-exported for model users

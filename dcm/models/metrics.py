@@ -262,5 +262,6 @@ def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.n
     return {**metrics, **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
 
 
-__all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "REGRET_KEY", "TOP_PICKS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
-           "per_skill_ranking", "ranking_metrics", "skill_common_rmse", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]
+__all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "REGRET_KEY", "TOP_PICKS", "WRENCH_AXES", "correlation",
+           "force_metrics", "force_prediction_metrics", "force_rmse", "per_skill_ranking", "ranking_metrics",
+           "skill_common_rmse", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]

@@ -34,7 +34,7 @@ class ChannelNormalizer(nn.Module):
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
 
     @torch.no_grad()
-    def fit(self, minimum: np.ndarray | torch.Tensor, maximum: np.ndarray | torch.Tensor) -> "ChannelNormalizer":
+    def fit(self, minimum: np.ndarray | torch.Tensor, maximum: np.ndarray | torch.Tensor) -> ChannelNormalizer:
         """Set the statistics from per-channel minima and maxima (C,)."""
         lo = torch.as_tensor(np.asarray(minimum, dtype=np.float64)).reshape(-1)
         hi = torch.as_tensor(np.asarray(maximum, dtype=np.float64)).reshape(-1)
@@ -53,7 +53,7 @@ class ChannelNormalizer(nn.Module):
         return self
 
     @torch.no_grad()
-    def fit_data(self, data: np.ndarray | torch.Tensor, mode: str = "minmax") -> "ChannelNormalizer":
+    def fit_data(self, data: np.ndarray | torch.Tensor, mode: str = "minmax") -> ChannelNormalizer:
         """Set the statistics from stacked samples (..., C): ``minmax`` or ``zscore`` (see the module)."""
         flat = torch.as_tensor(np.asarray(data, dtype=np.float64)).reshape(-1, self.n_channels)
         if mode == "minmax":

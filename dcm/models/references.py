@@ -23,7 +23,7 @@ import hashlib
 import json
 import math
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -132,7 +132,7 @@ class StiffnessRegression:
     # ------------------------------------------------------------------ fitting
     @classmethod
     def fit(cls, K: np.ndarray, L_task: np.ndarray, skills: np.ndarray, n_phases: int, control_hz: float,
-            alpha: float | None = None, info: dict[str, Any] | None = None) -> "StiffnessRegression":
+            alpha: float | None = None, info: dict[str, Any] | None = None) -> StiffnessRegression:
         """Fit on schedules K (N, H, 6), true L_task (N,) [N] and skill labels (N,).
 
         Features and log L_task are centred within each skill; ridge (closed form) on the centred data with
@@ -164,7 +164,7 @@ class StiffnessRegression:
     @classmethod
     def fit_dataset(cls, path: str | Path, split: str = "train", alpha: float | None = None,
                     n_phases: int | None = None, index: np.ndarray | None = None,
-                    task_from_s: float = 0.0) -> "StiffnessRegression":
+                    task_from_s: float = 0.0) -> StiffnessRegression:
         """Fit on ``split`` of a dataset file (only its trajectories ``index``, if given), grouped by
         ``demo_id``; L_task from its F_obs and F_demo, counted from ``task_from_s`` on."""
         from dcm.data.schema import load_dataset
@@ -196,7 +196,7 @@ class StiffnessRegression:
             "description": "ridge regression of log L_task [log N] on per-phase stiffness features, fitted on "
                            "per-skill centred data; prediction = exp(intercept + ((features - mean) / scale) . "
                            "coefficients)",
-            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
             "control_hz": self.control_hz,
             "phases": {"n_phases": self.n_phases, "method": self.info.get("phase_method"),
                        "derivation": "constant segments of the commanded K[:, :3] "
@@ -218,7 +218,7 @@ class StiffnessRegression:
         return path
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], path: str) -> "StiffnessRegression":
+    def from_dict(cls, data: dict[str, Any], path: str) -> StiffnessRegression:
         spec = (data.get("features") or {}).get("spec")
         if spec != FEATURE_SPEC:
             raise ReferenceError(f"{path}: field features.spec is {spec!r}; this dcm reads {FEATURE_SPEC!r}")

@@ -135,7 +135,7 @@ class BoTorchSearch:
         y = np.stack([worst if y is None else y for y in self._y])
         return np.stack(self._x), y
 
-    def _reference(self, neg_y: "torch.Tensor") -> "torch.Tensor":  # noqa: F821
+    def _reference(self, neg_y: torch.Tensor) -> torch.Tensor:  # noqa: F821
         import torch
         from botorch.utils.multi_objective.hypervolume import infer_reference_point
         from botorch.utils.multi_objective.pareto import is_non_dominated
@@ -162,8 +162,8 @@ class BoTorchSearch:
             finally:
                 torch.set_num_threads(threads)
 
-    def _optimize(self, x: "torch.Tensor", neg_y: "torch.Tensor", pending: "torch.Tensor | None",  # noqa: F821
-                  bounds: "torch.Tensor", step_seed: int) -> list[np.ndarray]:  # noqa: F821
+    def _optimize(self, x: torch.Tensor, neg_y: torch.Tensor, pending: torch.Tensor | None,  # noqa: F821
+                  bounds: torch.Tensor, step_seed: int) -> list[np.ndarray]:  # noqa: F821
         import torch
         from botorch.acquisition.multi_objective.logei import qLogNoisyExpectedHypervolumeImprovement
         from botorch.fit import fit_gpytorch_mll

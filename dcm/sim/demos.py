@@ -271,7 +271,7 @@ class DemoSpec:
         return json.dumps(self.to_dict(), sort_keys=True)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], where: str = "DemoSpec") -> "DemoSpec":
+    def from_dict(cls, data: dict[str, Any], where: str = "DemoSpec") -> DemoSpec:
         if not isinstance(data, dict):
             raise DemoSpecError(f"{where}: expected a mapping, got {type(data).__name__}")
         allowed = {"name", "family", "params", "press_m", "duration_s", "approach_s", "hover_m",
@@ -287,7 +287,7 @@ class DemoSpec:
             raise DemoSpecError(f"{where}: {err}") from None
 
     @classmethod
-    def load(cls, path: str | Path) -> "DemoSpec":
+    def load(cls, path: str | Path) -> DemoSpec:
         """Read a spec from YAML or JSON. A relative ``waypoints`` path is resolved against the spec's folder
         when it does not exist relative to the working directory."""
         import yaml
@@ -504,7 +504,7 @@ class Demo:
         }
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "Demo":
+    def from_dict(cls, data: dict[str, Any]) -> Demo:
         return cls(
             spec=DemoSpec.from_dict(data["spec"]),
             dt=float(data["dt"]),

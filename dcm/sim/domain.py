@@ -123,14 +123,14 @@ class DomainSpec(SpecIO):
         return out
 
     @classmethod
-    def preset(cls, name: str) -> "DomainSpec":
+    def preset(cls, name: str) -> DomainSpec:
         """``"nominal"`` or ``"realistic"``."""
         if name not in PRESETS:
             raise DomainSpecError(f"unknown domain preset {name!r}; known: {sorted(PRESETS)}")
         return cls.from_dict(PRESETS[name])
 
     @classmethod
-    def resolve(cls, domain: Any) -> "DomainSpec":
+    def resolve(cls, domain: Any) -> DomainSpec:
         """A domain as configs give it: a preset name, a mapping of fields, or a ``DomainSpec``."""
         if isinstance(domain, cls):
             return domain

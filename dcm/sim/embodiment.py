@@ -46,13 +46,13 @@ class Embodiment(Protocol):
     """A compliant end effector in contact with a bowl, commanded once per control period."""
 
     name: str
-    model: "mujoco.MjModel"
-    data: "mujoco.MjData"
+    model: mujoco.MjModel
+    data: mujoco.MjData
 
     def __init__(
         self,
-        bowl: "BowlSpec",
-        domain: "DomainSpec",
+        bowl: BowlSpec,
+        domain: DomainSpec,
         control_dt: float = CONTROL_DT_S,
         physics_dt: float = PHYSICS_DT_S,
     ) -> None: ...

@@ -21,8 +21,17 @@ from omegaconf import DictConfig
 
 from dcm.cli import CONF_DIR, quiet_libraries
 from dcm.training.run_dir import SUMMARY_FILE
-from dcm.training.train import (USER_ERRORS, TrainConfigError, check_data_argument, check_dataset_overrides,
-                                check_resume_argument, closing_summary, resolve_resume, reuse_run, train)
+from dcm.training.train import (
+    USER_ERRORS,
+    TrainConfigError,
+    check_data_argument,
+    check_dataset_overrides,
+    check_resume_argument,
+    closing_summary,
+    resolve_resume,
+    reuse_run,
+    train,
+)
 
 # Third-party lines that say nothing about this run, each silenced by its logger or its exact message.
 _NOTICE_PREFIXES = ("💡 Tip:",)  # Lightning's advertisements of its cloud services (litlogger, litmodels)

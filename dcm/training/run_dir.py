@@ -13,8 +13,9 @@ The names live here only, so a change of format is one edit.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 CONFIG_FILE = "config.yaml"
 SUMMARY_FILE = "summary.json"

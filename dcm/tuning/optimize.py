@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -60,7 +61,7 @@ class TrialLog:
             np.savez(f, phase_stiffness=np.stack(self.phase_stiffness), objectives=np.stack(self.objectives), **extra)
 
     @classmethod
-    def load(cls, path: Path) -> "TrialLog":
+    def load(cls, path: Path) -> TrialLog:
         with np.load(path) as saved:
             fingerprint = json.loads(str(saved["fingerprint"])) if "fingerprint" in saved.files else None
             notes = json.loads(str(saved["notes"])) if "notes" in saved.files else {}

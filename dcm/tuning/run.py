@@ -35,10 +35,21 @@ import numpy as np
 from dcm.control import phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import make_search
-from dcm.tuning.checks import (CheckedConfig, ConditioningRangeWarning, DemoRecordingWarning, PredictionErrorWarning,
-                               TuneConfigError, check_config, check_predictor, conditioning_check,
-                               conditioning_warnings, prediction_check, prediction_limit, recording_mismatch,
-                               to_container)
+from dcm.tuning.checks import (
+    CheckedConfig,
+    ConditioningRangeWarning,
+    DemoRecordingWarning,
+    PredictionErrorWarning,
+    TuneConfigError,
+    check_config,
+    check_predictor,
+    conditioning_check,
+    conditioning_warnings,
+    prediction_check,
+    prediction_limit,
+    recording_mismatch,
+    to_container,
+)
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
 from dcm.tuning.pareto import hypervolume, pareto_mask

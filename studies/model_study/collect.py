@@ -22,8 +22,16 @@ from dcm.cli import flatten
 from dcm.models.references import STIFFNESS_RIDGE
 from studies.model_study.matched_ridge import USAGE_RATE, matched_ridge_runs
 from studies.model_study.model_table import COLUMNS, cached_eval
-from studies.model_study.runs import (Run, StudyError, StudySpec, find_runs, init_runs, reference_values, setting_keys,
-                                      study_spec)
+from studies.model_study.runs import (
+    Run,
+    StudyError,
+    StudySpec,
+    find_runs,
+    init_runs,
+    reference_values,
+    setting_keys,
+    study_spec,
+)
 from studies.model_study.stats import describe, welch_test
 
 log = logging.getLogger("studies.model_study")
@@ -144,7 +152,7 @@ def train_command(args: list[str]) -> str:
     return " ".join(["python train.py -m", *conf, *(shlex.quote(a) for a in args)])
 
 
-def cell_command(cell: "Cell", sweep_dir: Path) -> str:
+def cell_command(cell: Cell, sweep_dir: Path) -> str:
     """The ``train.py -m`` command that trains a cell's runs: the first run's own overrides
     (``.hydra/overrides.yaml``) with the cell's seeds, and the Hydra overrides of the sweep's launch. A study
     filled by several launches thus names each setting's command, not only the last launch's. Empty for the

@@ -132,7 +132,8 @@ def per_skill_table(rows: dict[str, dict[str, list[dict[str, Any]]]], splits: li
     head = (["split", "skill", "trials", "L_task mean [N]", "L_task sd [N]"]
             + [f"{label}: {what}" for label in ranked for what in ("R", "error sd [N]")])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    fmt = (lambda v: f"{v:.3f}" if np.isfinite(v) else "–")
+    def fmt(v):
+        return (f"{v:.3f}" if np.isfinite(v) else "–")
     for split in splits:
         truths = {s["skill"]: s for label in ranked for r in rows[label].get(split, [])  # the same for every predictor
                   for s in r.get("per_skill", [])}

@@ -8,7 +8,7 @@ Welch's t-test, not a paired test.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -132,7 +132,7 @@ def plot(skills: dict[str, dict[str, Any]], path: Path) -> None:
     families = sorted({s["family"] for s in skills.values()})
     colours = dict(zip(families, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
     fig, axes = plt.subplots(1, 3, figsize=(14, 4), constrained_layout=True)
-    for name, s in skills.items():
+    for s in skills.values():
         c = colours[s["family"]]
         axes[0].plot(s["sweep_Npm"], s["sweep_L_task"], "o-", c=c, ms=3, lw=0.8, alpha=0.7)
         axes[2].scatter(s["random_L_comp"], s["random_L_task"], s=8, color=c, alpha=0.6)

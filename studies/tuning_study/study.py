@@ -35,10 +35,23 @@ import numpy as np
 
 from dcm.tuning.pareto import hypervolume
 from dcm.tuning.run import ROBOT_LOG
-from studies.tuning_study.study_config import (Tuner, check_resume, check_study, plain, robot_trial_counts, seeds,
-                                              tune_config, tuners)
-from studies.tuning_study.study_controls import (demo_reference_point, run_prior, run_robot_based_picks, setup_skill,
-                                                write_json)
+from studies.tuning_study.study_config import (
+    Tuner,
+    check_resume,
+    check_study,
+    plain,
+    robot_trial_counts,
+    seeds,
+    tune_config,
+    tuners,
+)
+from studies.tuning_study.study_controls import (
+    demo_reference_point,
+    run_prior,
+    run_robot_based_picks,
+    setup_skill,
+    write_json,
+)
 from studies.tuning_study.study_report import box_plot, cost_table, label, study_table
 from studies.tuning_study.study_stats import aggregate, landscape
 

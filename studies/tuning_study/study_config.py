@@ -16,9 +16,10 @@ the product's, so composing it needs both config dirs on Hydra's search path: :f
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 STUDY_CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # studies/conf: study.yaml
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"  # the product's conf: tune.yaml and the groups study.yaml uses

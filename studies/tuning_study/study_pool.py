@@ -22,8 +22,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 from studies.tuning_study.study_report import label
 from studies.tuning_study.study_stats import aggregate

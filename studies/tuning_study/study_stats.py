@@ -8,7 +8,7 @@ Wilcoxon signed-rank test on their per-seed differences, not by two independent 
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 

@@ -56,5 +56,6 @@ class TransformerScoreNet(TokenScoreNet):
     def mix(self, tokens: torch.Tensor) -> torch.Tensor:
         L = tokens.shape[1]
         h = tokens + sinusoidal_positions(L, self.d_model, tokens.device, tokens.dtype)[None]
-        mask = nn.Transformer.generate_square_subsequent_mask(L, device=tokens.device, dtype=tokens.dtype) if self.causal else None
+        mask = (nn.Transformer.generate_square_subsequent_mask(L, device=tokens.device, dtype=tokens.dtype)
+                if self.causal else None)
         return self.encoder(h, mask=mask, is_causal=self.causal)

@@ -123,7 +123,8 @@ def test_without_a_perturbation_every_oracle_ranks_perfectly(tmp_path) -> None:
     """The known answer: with no per-rollout perturbation every rollout repeats the label, so every oracle
     has R = 1; with one, the rollouts differ and the oracles fall below 1."""
     result = spread_check.main(["--dataset", "tiny", "--max-skills", "1", "--n-schedules", "4", "--k", "1",
-                                "--n-truth", "2", "--bowl-offset-mm", "0", "3", "--out", str(tmp_path), "--predictor", "copy=copy_demo"])
+                                "--n-truth", "2", "--bowl-offset-mm", "0", "3", "--out", str(tmp_path),
+                                "--predictor", "copy=copy_demo"])
     exact, offset = result["by_spread"]["bowl_offset_std_mm=0"], result["by_spread"]["bowl_offset_std_mm=3"]
     for truth in spread_check.TRUTHS:
         assert {p: exact["R_within"][truth][p] for p in spread_check.PREDICTORS} == {

@@ -10,8 +10,14 @@ import json
 import numpy as np
 import pytest
 
-from studies.tuning_study.trial_ranking import (calibration_rows, front_hv, main, ranking_scores,
-                                                score_tuning_agreement, tuned_summary)
+from studies.tuning_study.trial_ranking import (
+    calibration_rows,
+    front_hv,
+    main,
+    ranking_scores,
+    score_tuning_agreement,
+    tuned_summary,
+)
 
 REFERENCE = np.array([1.0, 3.0])
 
