@@ -461,7 +461,8 @@ def test_tune_py_prints_the_reference_point_and_the_prediction_error_and_warns_i
     run_dir = tmp_path / "run"
     proc = subprocess.run([sys.executable, str(REPO / "tune.py"), f"ckpt={tiny_checkpoint}",
                            f"demo_file={_short_demo(tmp_path)}", "embodiment=tool", "robot_free.n_trials=8",
-                           "robot_free.batch_size=8", "robot_free.n_validate=2", "robot_based.n_trials=5",
+                           "robot_free.batch_size=8", "robot_free.sampling_steps=5",
+                           "robot_free.n_validate=2", "robot_based.n_trials=5",
                            "search.options.n_startup_trials=4", f"hydra.run.dir={run_dir}"],
                           cwd=REPO, env={**env, "MUJOCO_GL": "egl"}, capture_output=True, text=True, timeout=300,
                           check=False)

@@ -3,10 +3,11 @@
     python -m studies.tuning_study.compare outputs/tune/<run_a> outputs/tune/<run_b> [--robot-trials 5 20 50]
         [--reference-point L_TASK_N L_COMP_KNPM] [--out cmp.json]
 
-Each run's own ``results.json`` uses a reference point taken over that run alone (unless it was given
-``reference_point``), so hypervolumes of two runs do not compare. This command pools every run's validated
-robot-free solutions and robot-based trials, takes one reference point over the pool (or the one given),
-and reports I_H for each run's robot-free solutions and for the first N robot-based trials of the first run
+Runs of one skill store the same reference point (set by the skill, not by the run), and this command
+scores on it; runs that stored different points (e.g. written before the point was the skill's, or given
+their own ``reference_point``) are scored on one point taken over the pool of every run's validated
+robot-free solutions and robot-based trials, or on the one given. It reports I_H for each run's robot-free
+solutions and for the first N robot-based trials of the first run
 (a seeded search's first N trials are exactly what an N-trial run would have done). Runs must have tuned
 the same skill (demo, simulator, stiffness space, seed: ``results.json``'s ``skill``); others are refused.
 """
@@ -35,6 +36,12 @@ def _finite(points: np.ndarray) -> np.ndarray:
     return points[np.isfinite(points).all(axis=1)]
 
 
+def _stored_reference(run: Path) -> tuple[float, float] | None:
+    """The reference point a run stored, if it stored one."""
+    point = json.loads((run / "results.json").read_text()).get("reference_point")
+    return (float(point["L_task_N"]), float(point["L_comp_kNpm"])) if isinstance(point, dict) else None
+
+
 def _check_same_skill(runs: Sequence[Path]) -> None:
     """Refuse runs of different skills: their hypervolumes measure different problems."""
     from dcm.tuning.optimize import fingerprint_differences
@@ -53,7 +60,8 @@ def _check_same_skill(runs: Sequence[Path]) -> None:
 
 def compare(runs: Sequence[Path], robot_trials: Sequence[int], reference: Sequence[float] | None = None) -> dict:
     """Hypervolumes of every run's validated solutions and of robot-based prefixes, one reference point
-    (``reference`` = (L_task_N, L_comp_kNpm), or None to take it over all the runs' points)."""
+    (``reference`` = (L_task_N, L_comp_kNpm), or None: the point the runs stored if they agree, else one taken
+    over all the runs' points)."""
     for run in runs:
         if not (run / "results.json").is_file():
             raise FileNotFoundError(f"{run}: no results.json (is it a finished tune.py run directory?)")
@@ -65,6 +73,8 @@ def compare(runs: Sequence[Path], robot_trials: Sequence[int], reference: Sequen
         reference = np.asarray(reference, dtype=np.float64)
         if reference.shape != (2,) or not np.isfinite(reference).all():
             raise ValueError(f"--reference-point needs two finite numbers (L_task_N L_comp_kNpm), got {reference}")
+    elif len(stored := {_stored_reference(run) for run in runs}) == 1 and None not in stored:
+        reference = np.asarray(stored.pop(), dtype=np.float64)
     else:
         reference = reference_point(*validated.values(), _finite(robot))
     report = {
