@@ -31,7 +31,7 @@ def _shipped_config(name: str) -> tuple[dict, dict]:
 
 
 def _planned(overrides: list[str]) -> dict:
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         return planned_config(compose("train", overrides=overrides))
 
 

@@ -271,7 +271,7 @@ def _hydra_main() -> None:
 
     sys.argv[1:] = with_product_conf(sys.argv[1:])
 
-    @hydra.main(version_base=None, config_path=str(STUDY_CONF_DIR), config_name="study")
+    @hydra.main(config_path=str(STUDY_CONF_DIR), config_name="study")
     def main(cfg: Any) -> None:
         try:
             report = run_study(cfg, Path(cfg.out_dir))

@@ -38,7 +38,7 @@ def compose_study(overrides: Sequence[str] = ()) -> Any:
     """``studies/conf/study.yaml`` with ``overrides``, composed outside of a Hydra app (as tests and scripts do)."""
     from hydra import compose, initialize_config_dir
 
-    with initialize_config_dir(config_dir=str(STUDY_CONF_DIR), version_base=None):
+    with initialize_config_dir(config_dir=str(STUDY_CONF_DIR)):
         return compose("study", overrides=[f"hydra.searchpath=['file://{CONF_DIR}']", *overrides])
 
 
@@ -134,7 +134,7 @@ def _compose_tune() -> Any:
 
     if GlobalHydra.instance().is_initialized():
         return compose(config_name="tune")
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+    with initialize_config_dir(config_dir=str(CONF_DIR)):
         return compose(config_name="tune")
 
 

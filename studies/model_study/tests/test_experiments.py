@@ -22,7 +22,7 @@ SEARCH_PATH = f"hydra.searchpath=['file://{STUDY_CONF}']"
 
 def _sweep_overrides(name: str) -> list[str]:
     """One override per swept value, each on its own (the sweep's product is these, combined)."""
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("train", overrides=[SEARCH_PATH, f"+experiment={name}"], return_hydra_config=True)
     params = cfg.hydra.sweeper.params or {}
     return [f"{key}={value}" for key, values in params.items() for value in str(values).split(",")]
@@ -33,7 +33,7 @@ def test_experiment_sweep_values_build_their_model(name: str) -> None:
     overrides = _sweep_overrides(name)
     assert overrides, f"studies/conf/experiment/{name}.yaml sweeps nothing"
     for override in overrides:
-        with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        with initialize_config_dir(config_dir=str(REPO / "conf")):
             cfg = compose("train", overrides=[SEARCH_PATH, f"+experiment={name}", override])
         assert cfg.study.name == name
         new_model(cfg)  # as train.py builds it: validates every field (unknown keys, bad values), builds the net

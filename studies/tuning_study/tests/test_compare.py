@@ -22,7 +22,7 @@ def _tune(ckpt: Path, tmp_path: Path, name: str, *extra: str) -> tuple[Path, dic
     demo = tmp_path / "short_wave.yaml"
     demo.write_text(yaml.safe_dump(spec))
     out_dir = tmp_path / name
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("tune", overrides=[
             f"ckpt={ckpt}", f"demo_file={demo}", "embodiment=tool", f"out_dir={out_dir}", "robot_free.n_trials=8",
             "robot_free.batch_size=8", "robot_free.n_validate=3", "robot_based.n_trials=5",
