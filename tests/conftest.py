@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 import pytest
+import yaml
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering backend; must precede any robosuite import
 
@@ -46,3 +47,13 @@ def tiny_checkpoint(tiny_dataset_path: Path, tmp_path_factory: pytest.TempPathFa
 
     return train_tiny(DCM, tiny_dataset_path, tmp_path_factory.mktemp("tiny_ckpt") / "dcm.ckpt", 5,
                       diffusion_steps=5)
+
+
+def short_wave_demo(tmp_path: Path, **changes) -> Path:
+    """The wavelike demo cut to 2 s (0.4 s approach), with ``changes`` to its spec: a tune run in seconds."""
+    spec = yaml.safe_load((Path(__file__).resolve().parents[1] / "data/demos/wavelike.yaml").read_text())
+    spec["duration_s"], spec["approach_s"] = 2.0, 0.4
+    spec.update(changes)
+    demo = tmp_path / f"short_wave{len(changes)}.yaml"
+    demo.write_text(yaml.safe_dump(spec))
+    return demo

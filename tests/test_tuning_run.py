@@ -21,6 +21,7 @@ from dcm.tuning.checks import TuneConfigError, check_config, recording_mismatch
 from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
 from dcm.tuning.run import record_skill, tune, use_sampler
+from tests.conftest import short_wave_demo
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -33,15 +34,6 @@ def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int, *extr
             "robot_free.sampling_steps=5",  # DDIM steps must divide the tiny checkpoint's T = 5
             "robot_based.n_trials=5", "search.options.n_startup_trials=4", *extra,
         ])
-
-
-def _short_demo(tmp_path: Path, **changes) -> Path:
-    spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
-    spec["duration_s"], spec["approach_s"] = 2.0, 0.4
-    spec.update(changes)
-    demo = tmp_path / f"short_wave{len(changes)}.yaml"
-    demo.write_text(yaml.safe_dump(spec))
-    return demo
 
 
 def _numbers(results: dict) -> dict:
@@ -57,7 +49,7 @@ DDPM = ["robot_free.sampler=ddpm", "robot_free.sampling_steps=null"]  # noise at
 
 
 def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, tmp_path: Path):
-    demo = _short_demo(tmp_path)
+    demo = short_wave_demo(tmp_path)
     out_dir = tmp_path / "run"
 
     first = tune(_config(tiny_checkpoint, demo, out_dir, 16, *DDPM), out_dir)
@@ -95,7 +87,7 @@ def test_the_default_robot_free_search_gives_the_same_results_for_the_same_seed(
                                                                                tmp_path: Path, precision: str):
     """conf/tune.yaml's robot-free defaults (a few DDIM steps, one MOTPE fit per batch, bfloat16 where native)
     give the same results.json for the same seed, and a killed-and-resumed run those of an uninterrupted one."""
-    demo = _short_demo(tmp_path)
+    demo = short_wave_demo(tmp_path)
     extra = (f"robot_free.precision={precision}", "robot_based.n_trials=0")
     runs = [tune(_config(tiny_checkpoint, demo, tmp_path / name, 24, *extra), tmp_path / name) for name in "ab"]
     assert _numbers(runs[0]) == _numbers(runs[1])
@@ -110,7 +102,7 @@ def test_the_default_robot_free_search_gives_the_same_results_for_the_same_seed(
 def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny_checkpoint: Path, tmp_path: Path):
     """With a per-rollout spread (domain=bowl_offset) a solution is judged by its mean L_task over
     ``validation_rollouts`` draws, none of them the one a search trial got; the robot-based front's picks too."""
-    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    demo, out_dir = short_wave_demo(tmp_path), tmp_path / "run"
     cfg = _config(tiny_checkpoint, demo, out_dir, 8, "validation_rollouts=3", "domain=bowl_offset")
     results = tune(cfg, out_dir)
     free, based = results["robot_free"], results["robot_based"]
@@ -136,7 +128,7 @@ def test_task_from_s_scores_every_tuner_after_the_approach(tiny_checkpoint: Path
     from dcm.control import task_loss
     from dcm.models.predict import predict_task_loss
 
-    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    demo, out_dir = short_wave_demo(tmp_path), tmp_path / "run"
     cfg = _config(tiny_checkpoint, demo, out_dir, 8, "task_from_s=0.4")
     results = tune(cfg, out_dir)
     assert results["skill"]["task_from_s"] == 0.4
@@ -162,7 +154,7 @@ def test_task_from_s_scores_every_tuner_after_the_approach(tiny_checkpoint: Path
 
 
 def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoint: Path, tmp_path: Path):
-    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    demo, out_dir = short_wave_demo(tmp_path), tmp_path / "run"
     small = ["robot_based.n_trials=0"]
     first = tune(_config(tiny_checkpoint, demo, out_dir, 8, *small), out_dir)
     assert first["predictor"]["sampler"] == "ddim" and first["predictor"]["sampling_steps"] == 5
@@ -180,7 +172,7 @@ def test_tune_refuses_a_log_of_another_checkpoint_demo_or_sampler(tiny_checkpoin
     assert "overwrite=true" in message
     # another demo
     with pytest.raises(TrialLogMismatch, match=r"demo.press_m: 0.01 -> 0.012"):
-        tune(_config(tiny_checkpoint, _short_demo(tmp_path, press_m=0.012), out_dir, 8, *small), out_dir)
+        tune(_config(tiny_checkpoint, short_wave_demo(tmp_path, press_m=0.012), out_dir, 8, *small), out_dir)
     # another sampler, then overwrite=true proceeds and the log is rewritten with the new settings
     ddpm = ["robot_free.sampler=ddpm", "robot_free.sampling_steps=null"]
     with pytest.raises(TrialLogMismatch, match=r"predictor.sampler: ddim -> ddpm"):
@@ -315,7 +307,7 @@ def test_a_prior_blends_the_tuners_model_with_the_stiffness_ridge(tiny_checkpoin
     from dcm.models.references import main as references_main
 
     ref = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
-    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    demo, out_dir = short_wave_demo(tmp_path), tmp_path / "run"
     small = ["robot_based.n_trials=0", f"prior={ref}"]
     results = tune(_config(tiny_checkpoint, demo, out_dir, 8, *small, "prior_weight=0.5"), out_dir)
     assert results["predictor"]["prior_weight"] == 0.5
@@ -359,7 +351,7 @@ def test_the_reference_point_depends_on_the_skill_alone(tiny_checkpoint: Path, t
     own stiffness, and the stiffest schedule), never by what either search found; a given point wins."""
     from dcm.control import compliance_loss
 
-    demo = _short_demo(tmp_path)
+    demo = short_wave_demo(tmp_path)
     runs = [tune(_config(tiny_checkpoint, demo, tmp_path / f"seed{seed}", 8, f"seed={seed}", "domain=realistic"),
                  tmp_path / f"seed{seed}") for seed in (0, 1)]
     first, second = (run["reference_point"] for run in runs)
@@ -421,7 +413,7 @@ def test_a_skill_like_the_training_demos_conditions_the_model_inside_its_range(t
 
     from dcm.tuning.checks import ConditioningRangeWarning
 
-    cfg = _shipped_config(tmp_path, f"demo_file={_short_demo(tmp_path, duration_s=12.0, approach_s=1.0, lead=True)}")
+    cfg = _shipped_config(tmp_path, f"demo_file={short_wave_demo(tmp_path, duration_s=12.0, approach_s=1.0, lead=True)}")
     with warnings.catch_warnings():
         warnings.simplefilter("error", ConditioningRangeWarning)
         results = tune(cfg, tmp_path / "run")
@@ -435,7 +427,7 @@ def test_predicted_and_realised_L_task_of_the_validated_solutions_are_reported(t
     split, else an absolute tolerance."""
     from dcm.tuning import checks
 
-    demo, out_dir = _short_demo(tmp_path), tmp_path / "run"
+    demo, out_dir = short_wave_demo(tmp_path), tmp_path / "run"
     monkeypatch.setattr(checks, "PREDICTION_TOLERANCE_N", 1e-9)  # any error exceeds it
     with pytest.warns(checks.PredictionErrorWarning, match=r"L_task error on the validated solutions"):
         results = tune(_config(tiny_checkpoint, demo, out_dir, 8), out_dir)
@@ -460,7 +452,7 @@ def test_tune_py_prints_the_reference_point_and_the_prediction_error_and_warns_i
     env = {k: v for k, v in os.environ.items() if k != "PYTHONWARNINGS"}
     run_dir = tmp_path / "run"
     proc = subprocess.run([sys.executable, str(REPO / "tune.py"), f"ckpt={tiny_checkpoint}",
-                           f"demo_file={_short_demo(tmp_path)}", "embodiment=tool", "robot_free.n_trials=8",
+                           f"demo_file={short_wave_demo(tmp_path)}", "embodiment=tool", "robot_free.n_trials=8",
                            "robot_free.batch_size=8", "robot_free.sampling_steps=5",
                            "robot_free.n_validate=2", "robot_based.n_trials=5",
                            "search.options.n_startup_trials=4", f"hydra.run.dir={run_dir}"],

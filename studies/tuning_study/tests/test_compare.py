@@ -6,21 +6,18 @@ import json
 from pathlib import Path
 
 import pytest
-import yaml
 from hydra import compose, initialize_config_dir
 
 from dcm.tuning.run import tune
 from studies.tuning_study.compare import compare
+from tests.conftest import short_wave_demo
 
 REPO = Path(__file__).resolve().parents[3]
 
 
 def _tune(ckpt: Path, tmp_path: Path, name: str, *extra: str) -> tuple[Path, dict]:
     """A tiny tune run of a 2 s wavelike demo in the tool simulator: 8 virtual and 5 robot-based trials."""
-    spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
-    spec["duration_s"], spec["approach_s"] = 2.0, 0.4
-    demo = tmp_path / "short_wave.yaml"
-    demo.write_text(yaml.safe_dump(spec))
+    demo = short_wave_demo(tmp_path)
     out_dir = tmp_path / name
     with initialize_config_dir(config_dir=str(REPO / "conf")):
         cfg = compose("tune", overrides=[

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 import dcm.tuning.run as tuning_run
 from dcm.models.references import main as references_main
@@ -18,6 +17,7 @@ from studies.tuning_study.study_config import StudyConfigError, compose_study
 from studies.tuning_study.study_controls import prior_levels
 from studies.tuning_study.study_stats import aggregate, landscape, paired_test
 from studies.tuning_study.trial_ranking import main as ranking_main
+from tests.conftest import short_wave_demo
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -71,17 +71,9 @@ def _study_config(ckpt: Path, reference: Path, demo: Path, out_dir: Path, *extra
     ])
 
 
-def _short_demo(tmp_path: Path) -> Path:
-    spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
-    spec["duration_s"], spec["approach_s"] = 2.0, 0.4
-    demo = tmp_path / "short_wave.yaml"
-    demo.write_text(yaml.safe_dump(spec))
-    return demo
-
-
 def test_a_tiny_study_runs_end_to_end_and_resumes_without_redoing_runs(tiny_checkpoint: Path, tiny_dataset_path: Path,
                                                                        tmp_path: Path, monkeypatch):
-    demo = _short_demo(tmp_path)
+    demo = short_wave_demo(tmp_path)
     reference = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
     out = tmp_path / "study"
     cfg = _study_config(tiny_checkpoint, reference, demo, out)
@@ -149,7 +141,7 @@ def test_with_validation_rollouts_every_front_is_judged_by_its_expected_loss(tin
     tuners are: its front's picks re-run ``validation_rollouts`` times, not its own lucky draws."""
     reference = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
     out = tmp_path / "study"
-    cfg = _study_config(tiny_checkpoint, reference, _short_demo(tmp_path), out, "seeds=1", "domain=bowl_offset",
+    cfg = _study_config(tiny_checkpoint, reference, short_wave_demo(tmp_path), out, "seeds=1", "domain=bowl_offset",
                         "validation_rollouts=2")
     report = run_study(cfg, out)
     point = np.array([report["reference_point"]["L_task_N"], report["reference_point"]["L_comp_kNpm"]])
