@@ -58,6 +58,7 @@ def test_a_nan_in_the_test_split_fails_before_fitting(tiny_dataset_path: Path, t
     run = tmp_path / "run"
     line = _error_line(_train([f"data.path={data}", *TINY, f"hydra.run.dir={run}"], cwd=tmp_path))
     assert line == f"error: file {data}, trajectory {name}, field F_obs: contains NaN or inf (first at index [7, 2])"
+    assert line in (run / "train.log").read_text()  # the run directory says why it stopped
     assert not (run / "checkpoints").exists()  # nothing was fitted
     # without the test pass, the test split is not read and the run goes through
     proc = _train([f"data.path={data}", *TINY, "test_after_fit=false", f"hydra.run.dir={run}"],

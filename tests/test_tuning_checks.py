@@ -163,6 +163,7 @@ def _help_groups(*command: str) -> set[str]:
     (["tune.py"], {"demo", "domain", "search", "stiffness"}),
     (["tune.py", "--config-name", "quickstart"], {"demo", "domain", "search", "stiffness"}),
     (["-m", "dcm.data.generate"], {"dataset", "search", "stiffness"}),
+    (["train.py"], {"model", "net", "schedule", "dataset", "trainer"}),
 ])
 def test_help_lists_only_the_config_groups_the_entry_uses(command, groups):
     assert _help_groups(*command) == groups

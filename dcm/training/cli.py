@@ -19,7 +19,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, quiet_libraries
+from dcm.cli import CONF_DIR, quiet_libraries, to_run_log
 from dcm.training.run_dir import SUMMARY_FILE
 from dcm.training.train import (
     USER_ERRORS,
@@ -79,6 +79,7 @@ def hydra_main(cfg: DictConfig) -> float | None:
         if os.environ.get("HYDRA_FULL_ERROR") == "1" or HydraConfig.get().mode == RunMode.MULTIRUN:
             raise
         print(f"error: {err}", file=sys.stderr)
+        to_run_log(f"error: {err}")  # the run directory's train.log says why the run stopped
         sys.exit(2)
     print(closing_summary(summary), flush=True)
     score = summary.get("best_score")
