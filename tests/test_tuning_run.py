@@ -248,31 +248,32 @@ def test_tune_names_the_overrides_when_the_demo_is_recorded_otherwise_than_the_t
     assert recording_mismatch("copy_demo", eight) is None
 
 
-def _trained_on_preset(tmp_path: Path, preset: str) -> Path:
-    """The shipped DCM with a card naming another training preset: what exporting a run on it would give."""
+def _trained_on_preset(tmp_path: Path, preset: str, recorded: dict | None = None) -> Path:
+    """The shipped DCM with a card naming another training preset (and the recording of its demos, which an
+    exported run stores): what exporting a run on it would give."""
     raw = read_checkpoint(REPO / "models/dcm_diverse_contact.ckpt")
     raw[CARD_KEY]["dataset"]["dataset"] = preset
+    if recorded is not None:
+        raw[CARD_KEY]["dataset"]["recording"] = recorded
     torch.save(raw, tmp_path / f"dcm_{preset}.ckpt")
     return tmp_path / f"dcm_{preset}.ckpt"
 
 
-def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid(tmp_path: Path,
-                                                                          monkeypatch: pytest.MonkeyPatch):
+def test_tune_names_the_bowl_grid_of_a_predictor_trained_on_a_converged_grid(tmp_path: Path):
     """A predictor of the *_fine presets learned forces on a 192 x 192 bowl grid; a skill on a coarser grid
-    shows facet jumps it never saw, so tune.py names the inline bowl that gives the skill's bowl that grid."""
+    shows facet jumps it never saw, so tune.py names the inline bowl that gives the skill's bowl that grid.
+    diverse_contact_fine is a research preset (studies/conf/dataset), which the product cannot look up: the
+    card's stored recording is what tells."""
     import dcm.data.recording as rec
     from dcm.data.generate import compose_config
 
-    # diverse_contact_fine is a research preset (studies/conf/dataset): its recording, as composed there
     research = f"hydra.searchpath=[file://{REPO / 'studies' / 'conf'}]"
     fine_recording = rec.recording(compose_config("diverse_contact_fine", [research]).dataset)
-    product = rec.preset_recording
-    monkeypatch.setattr(rec, "preset_recording",
-                        lambda name: fine_recording if name == "diverse_contact_fine" else product(name))
+    assert rec.preset_recording("diverse_contact_fine") is None
     spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
     coarse = DemoSpec.from_dict({**spec, "duration_s": 12.0, "lead": True})
     assert coarse.bowl.hfield_res != 192
-    fine_ckpt = _trained_on_preset(tmp_path, "diverse_contact_fine")
+    fine_ckpt = _trained_on_preset(tmp_path, "diverse_contact_fine", fine_recording._asdict())
     message = recording_mismatch(fine_ckpt, coarse)
     assert "on a 192 x 192 bowl grid" in message and f"on a {coarse.bowl.hfield_res} x" in message
     override = message.split("were: ")[1].split(" (or")[0]
@@ -469,3 +470,22 @@ def test_tune_py_prints_the_reference_point_and_the_prediction_error_and_warns_i
     assert warned and all("Warning: " in line for line in warned)  # e.g. the tiny model's ConditioningRangeWarning
     assert all(line.startswith("warning: ") or "trial" in line for line in lines), lines  # no source lines
     assert warned[0] in (run_dir / "tune.log").read_text()
+
+
+def test_a_predictor_carries_the_recording_of_the_data_it_learned_from(tiny_dataset_path: Path, tmp_path: Path):
+    """A run card and a reference fit store how their dataset's demos were recorded, so tune.py's recording
+    check works for data of any preset; a file that records no preset (imported logs) stores none."""
+    import json
+
+    from dcm.data.recording import file_recording, stored_recording
+    from dcm.data.schema import read_root_attrs
+    from dcm.models.predict import trained_recording
+    from dcm.models.references import StiffnessRegression
+    from dcm.training.run_dir import _dataset_identity
+
+    expected = file_recording(tiny_dataset_path)
+    assert _dataset_identity(str(tiny_dataset_path))["recording"] == expected._asdict()
+    ridge = tmp_path / "ridge.json"
+    ridge.write_text(json.dumps(StiffnessRegression.fit_dataset(tiny_dataset_path).to_dict()))
+    assert trained_recording(ridge) == expected
+    assert stored_recording({**read_root_attrs(tiny_dataset_path), "config": ""}) is None

@@ -33,6 +33,17 @@ def recording(dataset_config: Mapping[str, Any]) -> Recording:
                      None if grid is None else int(grid), None if hover is None else float(hover))
 
 
+def stored_recording(attrs: Mapping[str, Any], path: str | Path = "<dataset>") -> dict[str, Any] | None:
+    """The recording of a generated dataset, from its root attributes (as :func:`dcm.data.schema.read_root_attrs`
+    gives them), as a plain dict a model card or a reference's fit record stores; None for a file that records no
+    generating preset (imported robot logs). A predictor carries it so that a check finds it whichever preset,
+    product or research, made the data."""
+    from dcm.data.schema import read_config
+
+    dataset = read_config(attrs, path).get("dataset")
+    return recording(dataset)._asdict() if dataset else None
+
+
 def preset_recording(name: str | None) -> Recording | None:
     """The recording of the preset ``conf/dataset/<name>.yaml``; None when no preset has that name."""
     from dcm.cli import CONF_DIR

@@ -86,6 +86,23 @@ def trained_on(path: str | Path) -> str | None:
     return None
 
 
+def trained_recording(path: str | Path) -> Any:
+    """How the demos a predictor file learned from were recorded: what its card or fit record stores, else the
+    recording of the product preset it names; None when neither says (``copy_demo``, imported robot logs).
+    Returns a :class:`dcm.data.recording.Recording`."""
+    from dcm.data.recording import Recording, preset_recording
+
+    path = Path(path)
+    identity: dict[str, Any] = {}
+    if path.suffix.lower() == ".json":
+        identity = (json.loads(path.read_text()).get("fit") or {}).get("dataset") or {}
+    elif path.suffix.lower() == ".ckpt":
+        identity = checkpoint_card(path).get("dataset") or {}
+    if identity.get("recording"):
+        return Recording(**identity["recording"])
+    return preset_recording(trained_on(path))
+
+
 def check_dataset(predictor: Any, cond_channels: list[str], target_channels: list[str], control_hz: float,
                   source: str) -> None:
     """Raise if a dataset's channels or control rate differ from the predictor's (copy_demo accepts any)."""
@@ -166,4 +183,4 @@ def with_prior(predictor: Any, prior: str | Path | None, weight: float, source: 
 
 
 __all__ = ["ForcePredictor", "Predictor", "TaskLossPredictor", "check_dataset", "describe", "load_model", "model_class",
-           "predict_task_loss", "trained_on", "with_prior"]
+           "predict_task_loss", "trained_on", "trained_recording", "with_prior"]

@@ -32,6 +32,7 @@ from scipy import linalg
 
 from dcm.cli import quiet_libraries
 from dcm.control.objectives import task_loss, task_window_start
+from dcm.data.recording import stored_recording
 from dcm.models.configuration import ModelInputError
 from dcm.models.metrics import within_skill_correlation
 from dcm.models.stiffness_features import FEATURE_SPEC, batch_phase_values, feature_names, features
@@ -320,8 +321,11 @@ def _dataset_identity(path: Path, attrs: dict[str, Any]) -> dict[str, Any]:
             digest.update(block)
     keep = ("dataset", "created", "plan_fingerprint", "dcm_version", "embodiment", "search", "seed", "horizon",
             "control_hz", "n_trajectories_total")
-    return {"path": str(path.resolve()), "sha256": digest.hexdigest(),
-            "attrs": {k: attrs[k] for k in keep if k in attrs}}
+    identity = {"path": str(path.resolve()), "sha256": digest.hexdigest(),
+                "attrs": {k: attrs[k] for k in keep if k in attrs}}
+    if (recorded := stored_recording(attrs, path)) is not None:
+        identity["recording"] = recorded
+    return identity
 
 
 def _json_default(obj: Any) -> Any:

@@ -116,12 +116,17 @@ def _dataset_identity(path: str | None) -> dict[str, Any]:
     """Name, plan fingerprint and size of the dataset a run trained on (what regenerates it)."""
     if not path or not Path(path).is_file():
         return {"path": path, "available": False}
-    import h5py
 
-    with h5py.File(path, "r") as f:
-        attrs = {key: f.attrs[key] for key in ("dataset", "plan_fingerprint", "embodiment", "seed",
-                                               "n_trajectories_total", "dcm_version") if key in f.attrs}
-    return {"path": Path(path).name, **{k: v.item() if hasattr(v, "item") else str(v) for k, v in attrs.items()}}
+    from dcm.data.recording import stored_recording
+    from dcm.data.schema import read_root_attrs
+
+    root = read_root_attrs(path)
+    attrs = {key: root[key] for key in ("dataset", "plan_fingerprint", "embodiment", "seed", "n_trajectories_total",
+                                        "dcm_version") if key in root}
+    identity = {"path": Path(path).name, **{k: v.item() if hasattr(v, "item") else str(v) for k, v in attrs.items()}}
+    if (recorded := stored_recording(root, path)) is not None:
+        identity["recording"] = recorded
+    return identity
 
 
 def run_card(run_dir: Path) -> dict[str, Any]:

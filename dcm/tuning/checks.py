@@ -182,14 +182,13 @@ class DemoRecordingWarning(UserWarning):
 
 def recording_mismatch(ckpt: Any, spec: Any, control_hz: float = 20.0) -> str | None:
     """Why the skill's demo (a DemoSpec) is not recorded as the predictor's training demos were; None if it
-    is, or if the predictor does not name a dataset preset. F_demo and x_demo are model inputs, so another
+    is, or if the predictor does not say how its demos were recorded. F_demo and x_demo are model inputs, so another
     duration or demonstrator is an input the model never saw, and its ranking can drop. A waypoint file sets
     its own duration: it matches when it gives the training demos' step count at ``control_hz``."""
-    from dcm.data.recording import Recording, preset_recording
-    from dcm.models.predict import trained_on
+    from dcm.data.recording import Recording
+    from dcm.models.predict import trained_on, trained_recording
 
-    preset = trained_on(ckpt)
-    trained = preset_recording(preset)
+    trained = trained_recording(ckpt)
     if trained is None:
         return None
     fixes = []
@@ -210,7 +209,7 @@ def recording_mismatch(ckpt: Any, spec: Any, control_hz: float = 20.0) -> str | 
         return None
     here = Recording(float(spec.duration_s), bool(spec.lead), None if trained.bowl_grid is None else grid,
                      None if trained.hover_m is None else float(spec.hover_m))
-    return (f"ckpt={ckpt} learned from {trained.describe()} (dataset {preset}); this skill's demo: "
+    return (f"ckpt={ckpt} learned from {trained.describe()} (dataset {trained_on(ckpt)}); this skill's demo: "
             f"{here.describe()}. To record it as the model's training demos were: {' '.join(fixes)} "
             "(or those fields of demo_file)")
 

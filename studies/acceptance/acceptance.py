@@ -20,10 +20,10 @@ import sys
 import time
 from pathlib import Path
 
-from dcm.data.recording import Recording, file_recording, preset_recording
+from dcm.data.recording import Recording, file_recording
 from dcm.evaluate import evaluate
 from dcm.models.checkpoint import checkpoint_card
-from dcm.models.predict import trained_on
+from dcm.models.predict import trained_recording as predictor_recording
 from studies.model_study.model_table import INTERVAL, cell, interval_cell
 
 REPO = Path(__file__).resolve().parents[2]
@@ -41,7 +41,7 @@ COLUMNS = ("R_within", INTERVAL, "R_within_spearman", "R_pooled", "force_rmse_N"
 @functools.cache
 def trained_recording(path: Path) -> Recording | None:
     """The recording of a predictor's training demos, read once per predictor for all the datasets."""
-    return preset_recording(trained_on(path))
+    return predictor_recording(path)
 
 
 def _cells(row: dict) -> str:
