@@ -8,7 +8,9 @@ as its training demos were) and at one torch thread count, it times
 
 * ``default``: ``--trials`` virtual trials exactly as ``tune.py`` runs its robot-free search (the composed
   config's predictor, sampler, precision, batch size and search; :func:`dcm.tuning.optimize.optimize`, no log);
-* ``16 samples``: the same with ``robot_free.n_samples=16 robot_free.task_loss=over_samples``;
+* ``16 samples``: the same with ``robot_free.n_samples=16 robot_free.task_loss=over_samples`` (the samples of a
+  proposal share the leading denoising steps, ``robot_free.shared_steps=auto``; ``--row "independent:
+  robot_free.n_samples=16 robot_free.task_loss=over_samples robot_free.shared_steps=0"`` times them unshared);
 * every ``--row`` given (its overrides on top of the rest, e.g. the previous default:
   ``--row "ddim-5 float32 unbatched: robot_free.sampling_steps=5 robot_free.precision=float32
   robot_free.batched_search=false"``);
@@ -72,7 +74,8 @@ def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space
     return {"total": times.total, "model": objective.seconds_model, "inputs": objective.seconds_inputs,
             "optimiser": times.optimiser,
             "overhead": times.total - objective.seconds_model - objective.seconds_inputs - times.optimiser,
-            "precision": getattr(model, "inference_precision", "-")}
+            "precision": getattr(model, "inference_precision", "-"),
+            "shared_steps": getattr(model, "resolved_shared_steps", 0)}
 
 
 def time_simulator(simulator: Any, demo: Any, skill: Any, space: Any, count: int, seed: int) -> float:
@@ -136,6 +139,8 @@ def main() -> None:
         cfg = compose([*common, *overrides])
         t = time_model(cfg, checked.spec, simulator, demo, skill, space)
         settings = f"{cfg.robot_free.sampler}-{cfg.robot_free.sampling_steps}, k={cfg.robot_free.n_samples}"
+        if cfg.robot_free.n_samples > 1:
+            settings += f", shared {t['shared_steps']}"
         lines.append(f"{label + ' (' + settings + ')':<34} {t['precision']:>9} | {t['total']:7.1f} {t['model']:6.1f} "
                      f"{t['inputs']:6.2f} {t['optimiser']:6.2f} {t['overhead']:6.2f} | "
                      f"{100 * t['optimiser'] / t['total']:6.1f}% {args.trials / t['total']:8.0f} | "

@@ -74,6 +74,17 @@ def test_shards_merge_to_the_full_dataset(tiny_dataset_path: Path, tmp_path: Pat
                                load_dataset(tiny_dataset_path).stats["F_obs"]["mean"])
 
 
+def test_valid_split_alone_is_the_full_runs_valid_split(tiny_dataset_path: Path, tmp_path: Path) -> None:
+    out = generate(compose_config("tiny", [f"out={tmp_path / 'valid.h5'}", "workers=1", "progress=false",
+                                           "splits=[valid]"]))
+    alone, full = load_dataset(out, split="valid"), load_dataset(tiny_dataset_path, split="valid")
+    assert len(alone) == len(full) == len(load_dataset(out)) == 3
+    for field in FIELDS:
+        np.testing.assert_array_equal(alone.arrays[field], full.arrays[field], err_msg=field)
+    with pytest.raises(GenerationError, match=r"splits=\['val'\]: unknown split"):
+        generate(compose_config("tiny", [f"out={tmp_path / 'v.h5'}", "splits=[val]"]))
+
+
 def _run(args: list[str], **kwargs) -> subprocess.Popen:
     env = {**os.environ, "MUJOCO_GL": "egl"}
     return subprocess.Popen([sys.executable, "-m", "dcm.data.generate", *args], cwd=REPO, env=env,

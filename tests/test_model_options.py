@@ -134,6 +134,33 @@ def test_set_sampler_switches_steps_and_checks_them() -> None:
         model.set_sampler("ddim", 3)
 
 
+def test_samples_share_their_leading_steps_and_sample_zero_is_the_unshared_chain() -> None:
+    """With the signal input scaling, the three DDIM steps of T = 30 see noise of std 0.001, 0.07 and 0.46: the
+    k samples share the first two (one net row per condition), branch at the last, and sample 0 is the
+    independent chain's."""
+    model = DCM(net=dict(TINY_NET), diffusion_steps=30, input_scaling="signal", prediction_type="sample")
+    model.fit_normalizers(torch.randn(2, 8, 24), torch.randn(2, 8, 6))
+    model.set_sampler("ddim", 3)
+    rows: list[int] = []
+    original = model.inference_net.forward
+    model.inference_net.forward = lambda cond, *a: rows.append(len(cond)) or original(cond, *a)  # type: ignore
+    cond_n = torch.randn(2, 8, 24)
+    draw = lambda: model.sample_normalized(cond_n, 4, torch.Generator().manual_seed(5))  # noqa: E731
+    independent = draw()
+    assert rows == [8, 8, 8] and model.set_shared_steps("auto") == 2
+    rows.clear()
+    shared = draw()
+    assert rows == [2, 2, 8]  # 12 rows instead of 24
+    torch.testing.assert_close(shared[0], independent[0], rtol=1e-4, atol=1e-5)  # rounding of another batch size
+    assert shared.shape == (4, 2, 8, 6) and float(shared.std(0).mean()) > 0  # the samples still differ
+    assert model.set_shared_steps(1) == 1 and model.set_shared_steps(0) == 0
+    with pytest.raises(ModelInputError, match=r"shared_steps = 3 must be below the sampler's 3 steps"):
+        model.set_shared_steps(3)
+    unit = DCM(net=dict(TINY_NET), diffusion_steps=30, input_scaling="unit")
+    unit.set_sampler("ddim", 3)
+    assert unit.set_shared_steps("auto") == 0  # it sees unit-variance noise at every step
+
+
 def test_physical_encoding_is_the_deflection_and_log_stiffness() -> None:
     cond = _positive_stiffness_cond(torch.Generator().manual_seed(3))
     encoded = encode_conditions(cond, "physical")

@@ -47,6 +47,7 @@ def test_the_default_settings_pass():
     (["robot_free.sampler=euler"], "robot_free.sampler = 'euler'; expected null"),
     (["robot_free.sampling_steps=0"], "robot_free.sampling_steps = 0 must be an integer >= 1 or null"),
     (["robot_free.task_loss=median"], "robot_free.task_loss = 'median'; expected null"),
+    (["robot_free.shared_steps=-1"], "robot_free.shared_steps = -1 must be an integer >= 0 or auto"),
     (["reference_point=[0.0,2.0]"], "reference_point = [0, 2]: nothing can dominate it: L_task >= 0 N"),
     (["reference_point=[3.0,0.1]"], "reference_point = [3, 0.1]: nothing can dominate it: L_comp >= 0.1732 kN/m"),
     (["reference_point=[3.0]"], "reference_point = [3.0] must be null or [L_task_N, L_comp_kNpm]"),

@@ -99,6 +99,17 @@ def test_the_default_robot_free_search_gives_the_same_results_for_the_same_seed(
     assert _numbers(resumed) == _numbers(runs[0])
 
 
+def test_samples_sharing_their_first_steps_give_the_same_results_for_the_same_seed(tiny_checkpoint: Path,
+                                                                                  tmp_path: Path):
+    """robot_free.shared_steps with several samples per trial: seeded like any run, and named in its record."""
+    demo = short_wave_demo(tmp_path)
+    extra = ("robot_free.n_samples=2", "robot_free.task_loss=over_samples", "robot_free.shared_steps=1",
+             "robot_based.n_trials=0")
+    runs = [tune(_config(tiny_checkpoint, demo, tmp_path / name, 12, *extra), tmp_path / name) for name in "ab"]
+    assert _numbers(runs[0]) == _numbers(runs[1])
+    assert runs[0]["predictor"]["shared_steps"] == 1 and runs[0]["predictor"]["n_samples"] == 2
+
+
 def test_validation_rollouts_judge_every_front_by_its_mean_over_fresh_draws(tiny_checkpoint: Path, tmp_path: Path):
     """With a per-rollout spread (domain=bowl_offset) a solution is judged by its mean L_task over
     ``validation_rollouts`` draws, none of them the one a search trial got; the robot-based front's picks too."""

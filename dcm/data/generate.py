@@ -82,9 +82,10 @@ def generate(cfg: Any) -> Path:
     dataset_cfg = OmegaConf.to_container(cfg.dataset, resolve=True)
     demo_cfg = OmegaConf.to_container(cfg.demo, resolve=True)
     only_skills = list(cfg.skills) if cfg.get("skills") is not None else None
+    only_splits = list(cfg.splits) if cfg.get("splits") is not None else None
     try:
         all_jobs = plan_demos(dataset_cfg, int(cfg.seed), cfg.n_trials,
-                              demo_cfg if demo_cfg.get("waypoints") else None, only_skills)
+                              demo_cfg if demo_cfg.get("waypoints") else None, only_skills, only_splits)
     except PresetError as err:
         raise GenerationError(f"dataset={cfg.dataset.get('name')}: {err}") from None
     jobs = [job for job in all_jobs if job.index % shard_count == shard_index]

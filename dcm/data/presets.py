@@ -107,7 +107,8 @@ def expand_skill(skill: Mapping[str, Any], defaults: Mapping[str, Any], where: s
 
 
 def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: int | None = None,
-               waypoints: Mapping[str, Any] | None = None, only_skills: Sequence[str] | None = None) -> list[DemoJob]:
+               waypoints: Mapping[str, Any] | None = None, only_skills: Sequence[str] | None = None,
+               only_splits: Sequence[str] | None = None) -> list[DemoJob]:
     """Every demo of a preset, in a fixed order, with its splits, trial count and seed.
 
     Splits: a skill group's ``split`` is ``train``, ``valid``, ``test`` or ``trainval``. For ``trainval`` a
@@ -115,6 +116,8 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
     model is checked on unseen skills) or single trials of every skill (``valid_by: trial``; for presets
     with very few skills). ``only_skills`` keeps just the named skill groups (e.g. the train set alone);
     demo indices and seeds are those of the full plan, so the kept demos are identical to the full run's.
+    ``only_splits`` likewise keeps the demos with a trial in one of the named splits (e.g. ``valid``: a
+    model's validation skills without generating the training set).
     ``extra_skills`` (group name -> skill group) come after ``skills``: a mapping, unlike a list, merges
     across Hydra defaults, so a preset extends another one's groups without restating them.
     """
@@ -192,6 +195,11 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
             next_traj += n_trials
     if only_skills is not None:
         jobs = [job for job in jobs if job.skill in only_skills]
+    if only_splits is not None:
+        unknown = sorted(set(only_splits) - {"train", "valid", "test"})
+        if unknown:
+            raise PresetError(f"splits={list(only_splits)}: unknown split(s) {unknown}; expected train, valid or test")
+        jobs = [job for job in jobs if set(job.trial_splits) & set(only_splits)]
     return jobs
 
 

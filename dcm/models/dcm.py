@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from dcm.models import diffusion
-from dcm.models.configuration import DCMConfig
+from dcm.models.configuration import DCMConfig, ModelInputError
 from dcm.models.force_model import OUT_DIM, ForceModel
 
 
@@ -35,6 +35,7 @@ class DCM(ForceModel):
         self.train_scheduler = diffusion.make_scheduler("ddpm", self.noise_schedule, self.cfg.diffusion_steps,
                                                         self.cfg.prediction_type)
         self.set_sampler(self.cfg.sampler, self.cfg.sampling_steps)  # checks DDIM's divisor rule now
+        self.shared_steps: int | str = 0  # of predictions only (set_shared_steps); 0: independent samples
 
     @property
     def default_samples(self) -> int:
@@ -49,6 +50,31 @@ class DCM(ForceModel):
         diffusion.check_inference_steps(scheduler, sampling_steps)
         self.cfg.sampler, self.cfg.sampling_steps = sampler, sampling_steps
         self.sample_scheduler = scheduler
+
+    def set_shared_steps(self, shared_steps: int | str = "auto") -> int:
+        """Let the n_samples of one prediction share their first ``shared_steps`` denoising steps (one net call
+        per condition, :func:`diffusion.sample_many`), in this process only. ``auto``: the leading steps at
+        which the net sees noise of std <= :data:`diffusion.SHARED_NOISE_STD` (:func:`diffusion.shareable_steps`),
+        re-resolved whenever the sampler changes; 0: fully independent samples. Why: with the ``signal`` input
+        scaling the net sees the start noise scaled by about 1e-3, so every sample's first estimates are the
+        same and computing them k times is waste. Returns the steps shared under the current sampler."""
+        if shared_steps != "auto":
+            if isinstance(shared_steps, bool) or not isinstance(shared_steps, int) or shared_steps < 0:
+                raise ModelInputError(f"shared_steps must be 'auto' or an integer >= 0, got {shared_steps!r}")
+            n = diffusion.check_inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
+            if shared_steps >= n:
+                raise ModelInputError(f"shared_steps = {shared_steps} must be below the sampler's {n} steps "
+                                 "(the samples branch before the last)")
+        self.shared_steps = shared_steps
+        return self.resolved_shared_steps
+
+    @property
+    def resolved_shared_steps(self) -> int:
+        """The steps the samples of one prediction share under the current sampler (``set_shared_steps``)."""
+        if self.shared_steps == "auto":
+            return diffusion.shareable_steps(self.sample_scheduler, self.cfg.sampling_steps, self.cfg.input_scaling)
+        n = diffusion.check_inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
+        return min(int(self.shared_steps), n - 1)
 
     def denoising_outputs(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
                           generator: torch.Generator | None = None, groups: torch.Tensor | None = None
@@ -65,7 +91,8 @@ class DCM(ForceModel):
             return scaled(cond, x, t).float()  # under a bfloat16 autocast, the sampler's steps stay in float32
 
         return diffusion.sample_many(net_in, cond_n, OUT_DIM, self.sample_scheduler, n_samples,
-                                     num_inference_steps=self.cfg.sampling_steps, generator=generator)
+                                     num_inference_steps=self.cfg.sampling_steps, generator=generator,
+                                     shared_steps=self.resolved_shared_steps)
 
 
 __all__ = ["DCM"]

@@ -43,6 +43,8 @@ __all__ = [
     "training_target",
     "sample",
     "sample_many",
+    "shareable_steps",
+    "SHARED_NOISE_STD",
     "INPUT_SCALINGS",
     "scale_noisy_input",
 ]
@@ -53,6 +55,9 @@ INPUT_SCALINGS = ("unit", "signal")
 _SCHEDULE_ALIASES = {"squaredcos_cap_v2": "cosine", "squared_cosine": "cosine", "squaredcos": "cosine"}
 MAX_BETA = 0.999  # the cap diffusers and Nichol & Dhariwal use; keeps 1/sqrt(alpha_t) finite
 MAX_T = 100
+# Noise std the net may see at a step that k samples share (shareable_steps): at the tuner's three DDIM steps of
+# T = 30, the first two (0.001, 0.071) and not the last (0.46).
+SHARED_NOISE_STD = 0.1
 
 ScoreNet = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 Scheduler = DDPMScheduler | DDIMScheduler
@@ -346,21 +351,61 @@ def sample_many(
     num_inference_steps: int | None = None,
     generator: torch.Generator | None = None,
     max_batch: int | None = None,
+    shared_steps: int = 0,
 ) -> torch.Tensor:
     """k independent samples per condition, batched: returns (k, B, H, out_dim).
 
     The k copies run as one batch of k*B (chunked by `max_batch` rows to bound memory), so averaging
     over samples costs one sampling pass. Mean over dim 0 is the prediction, std its uncertainty.
+
+    ``shared_steps`` > 0: the first that many steps call the net once per condition, on sample 0's chain, and
+    every sample takes its own scheduler step from that output. Where the net sees the noise scaled almost to
+    nothing (:func:`shareable_steps`), all k outputs of those steps are about the same, so k samples then cost
+    ``shared_steps + k * (steps - shared_steps)`` rows of net calls instead of ``k * steps``. Sample 0 is the
+    unshared chain (up to the rounding of another batch size), a k = 1 prediction exactly so; the start noise
+    is drawn as for ``max_batch=None``.
     """
     if k < 1:
         raise ScheduleError(f"k must be >= 1, got {k}")
     B, H = cond.shape[:2]
     big = cond.repeat(k, 1, 1)  # sample j of item b sits at row j*B + b
     chunk = big.shape[0] if max_batch is None else max(1, int(max_batch))
-    outs = [
-        sample(net, c, (c.shape[0], H, out_dim), scheduler, num_inference_steps, generator) for c in big.split(chunk)
-    ]
-    return torch.cat(outs).reshape(k, B, H, out_dim)
+    if shared_steps <= 0 or k == 1:
+        outs = [sample(net, c, (c.shape[0], H, out_dim), scheduler, num_inference_steps, generator)
+                for c in big.split(chunk)]
+        return torch.cat(outs).reshape(k, B, H, out_dim)
+    n = check_inference_steps(scheduler, num_inference_steps)
+    if shared_steps >= n:
+        raise ScheduleError(f"shared_steps must be below the {n} sampling steps (the samples branch before the "
+                            f"last), got {shared_steps}")
+    scheduler.set_timesteps(n)
+    x = randn_tensor((k * B, H, out_dim), generator=generator, device=cond.device, dtype=cond.dtype)
+    ones = torch.ones(k * B, dtype=torch.long, device=cond.device)
+    for i, t in enumerate(scheduler.timesteps):
+        if i < shared_steps:
+            output = net(cond, x[:B], ones[:B] * t).repeat(k, 1, 1)
+        else:
+            output = torch.cat([net(c, x_c, ones[: len(c)] * t) for c, x_c in zip(big.split(chunk), x.split(chunk))])
+        x = scheduler.step(output, t, x, generator=generator).prev_sample
+    return x.reshape(k, B, H, out_dim)
+
+
+def shareable_steps(scheduler: Scheduler, num_inference_steps: int | None, scaling: str,
+                    max_noise: float = SHARED_NOISE_STD) -> int:
+    """How many leading sampling steps k samples can share (:func:`sample_many`'s ``shared_steps``): those at
+    which a net with ``signal`` input scaling sees noise of std sqrt(alpha_bar_t (1 - alpha_bar_t)) <=
+    ``max_noise``, and never the last step (the samples' spread enters there at the latest). A net with
+    ``unit`` scaling sees unit-variance noise at every step: none."""
+    n = check_inference_steps(scheduler, num_inference_steps)
+    if scaling != "signal":
+        return 0
+    scheduler.set_timesteps(n)
+    ab = scheduler.alphas_cumprod[scheduler.timesteps.long()].double()
+    seen = (ab * (1.0 - ab)).sqrt()
+    shared = 0
+    while shared < n - 1 and float(seen[shared]) <= max_noise:
+        shared += 1
+    return shared
 
 
 def scale_noisy_input(net: ScoreNet, scheduler: Scheduler, scaling: str = "unit") -> ScoreNet:

@@ -156,6 +156,9 @@ def describe(predictor: Any, n_samples: int | None = None) -> dict[str, Any]:
             "net": predictor.cfg.net.get("name"),
             # named only when it is not the default, so a log of the default's fingerprint does not depend on it
             **({"task_loss": predictor.cfg.task_loss} if is_dcm and predictor.cfg.task_loss != "of_mean" else {}),
+            # as task_loss: named only where samples share steps, so other logs keep their fingerprint
+            **({"shared_steps": predictor.resolved_shared_steps}
+               if is_dcm and k > 1 and predictor.resolved_shared_steps > 0 else {}),
             **({"precision": predictor.inference_precision}
                if getattr(predictor, "inference_precision", "float32") != "float32" else {}),
         }

@@ -122,6 +122,8 @@ def check_config(cfg: Any) -> CheckedConfig:
         raise TuneConfigError(f"robot_free.sampler = {sampler!r}; expected null (the checkpoint's), ddpm or ddim")
     if free.get("sampling_steps") is not None:
         _integer(free.sampling_steps, "robot_free.sampling_steps", 1, " or null")
+    if free.get("shared_steps") not in (None, "auto"):
+        _integer(free.shared_steps, "robot_free.shared_steps", 0, " or auto")
     if free.get("task_loss") not in (None, *TASK_LOSSES):
         raise TuneConfigError(f"robot_free.task_loss = {free.task_loss!r}; expected null (the checkpoint's), "
                               + " or ".join(TASK_LOSSES))

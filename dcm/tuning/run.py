@@ -139,6 +139,11 @@ def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
             model.set_precision(cfg.robot_free.precision)
         except ValueError as err:
             raise TuneConfigError(f"robot_free.precision: {err}") from None
+    if cfg.robot_free.get("shared_steps") is not None and hasattr(model, "set_shared_steps"):  # DCM only
+        try:
+            model.set_shared_steps(cfg.robot_free.shared_steps)
+        except ValueError as err:
+            raise TuneConfigError(f"robot_free.shared_steps: {err}") from None
     if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
         model.set_task_loss(cfg.robot_free.task_loss)
     if cfg.get("prior"):

@@ -82,9 +82,11 @@ class MultiScaleRetention(nn.Module):
     def _output(self, g: torch.Tensor, ret: torch.Tensor) -> torch.Tensor:
         """ret (B,h,L,dv) -> group norm per head, swish gate, output projection -> (B,L,d)."""
         B, _, L, _ = ret.shape
-        ret = ret.transpose(1, 2).reshape(B * L, self.v_dim)
-        ret = self.group_norm(ret).view(B, L, self.v_dim)
-        return self.out_proj(F.silu(g) * ret)
+        # GroupNorm with one group per head is a layer norm over each head's channels plus the per-channel
+        # affine; torch's layer norm kernel is several times faster on a CPU than its group norm for these shapes
+        gn = self.group_norm
+        ret = F.layer_norm(ret.transpose(1, 2), (self.head_v,), eps=gn.eps).reshape(B, L, self.v_dim)
+        return self.out_proj(F.silu(g) * torch.addcmul(gn.bias, ret, gn.weight))
 
     def decay_mask(self, L: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
         """D (h,L,L): gamma^(n-m) for m <= n else 0, each row divided by sqrt of its sum."""
