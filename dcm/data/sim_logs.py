@@ -196,7 +196,7 @@ def simulate_logs(out: Path, fmt: str, demo_name: str = "wavelike", trials: int 
             expected = sim.attractor(demo, stiffness)
             gap = np.abs(expected[:, :3] - attractor[:, :3]).max(axis=1)
             if gap.max() > 1e-3:
-                step = int(gap.argmax())
+                step = int(np.argmax(gap > 1e-3))
                 raise SimLogsError(f"{where}: attractor at step {step} is {gap[step] * 1000:.1f} mm from the one the "
                                    "simulator computes for this demo and K; was the round written for another demo?")
             runs.append((proposal_id, stiffness, proposal_id))
