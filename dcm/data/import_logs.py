@@ -1,8 +1,13 @@
 """Import real Franka logs into the dataset format, so robot data and simulated data train the same model.
 
     python -m dcm.data.import_logs logs/ --out data/real.h5 [--control-hz 20] [--lowpass-hz 5] [--overwrite]
+        [--topics topics.yaml] [--state-topic T] [--stiffness-topic T] [--equilibrium-topic T]
 
-Input format: one directory per episode (one stiffness trial) under ``<log_dir>``, processed in name order::
+Input format: one directory per episode (one stiffness trial) under ``<log_dir>``, processed in name order.
+Its streams come from CSV/npz files or from one ROS bag in the directory (``*.bag``; a ROS 2 bag directory,
+``*.db3`` or ``*.mcap``; see :mod:`dcm.data.rosbag_logs` for topics and message types); ``meta.json`` and
+``demo.csv`` are always files. Either way the streams take one processing path
+(:func:`dcm.data.log_episode.process_episode`)::
 
     <log_dir>/<episode>/
         meta.json       see below
@@ -18,8 +23,10 @@ Input format: one directory per episode (one stiffness trial) under ``<log_dir>`
         demo.csv        t, x, y, z, rx, ry, rz, Fx, Fy, Fz, Tx, Ty, Tz
                                           the demo reference in the dataset's conventions (bowl frame, pose as
                                           position + rotation vector from "tool pointing down", contact wrench)
-        attractor.csv   t, x, y, z, rx, ry, rz   (optional) the attractor the controller used, bowl frame;
-                                          when absent it is recomputed from the demo and K (paper's equation)
+        equilibrium.csv t, T0..T15        (optional) the controller's equilibrium (attractor) pose, base frame,
+                                          end effector, column-major as O_T_EE
+        attractor.csv   t, x, y, z, rx, ry, rz   (optional) the attractor already in the bowl frame; with neither
+                                          file it is recomputed from the demo and K (paper's equation)
 
     Instead of ``<name>.csv`` a ``<name>.npz`` with arrays ``t`` (N,) and ``values`` (N, C) is accepted.
     Each stream carries its own timestamps [s] (any common clock, jitter and different rates are fine).
@@ -34,7 +41,8 @@ Input format: one directory per episode (one stiffness trial) under ``<log_dir>`
         tip_offset_m (optional, default [0,0,0]): tool-tip position in the EE frame, if O_T_EE is not the tip;
                       the stiffness frame K is assumed to coincide with the EE frame,
         nominal_rotation (optional): 3x3 row-major base-frame rotation of the "tool pointing straight down"
-                      pose (default diag(1, -1, -1), Franka's usual downward flange).
+                      pose (default diag(1, -1, -1), Franka's usual downward flange),
+        proposal, round (optional): copied to the trajectory, so observations find the proposals they ran.
 
 Processing, in order: frame checks (rotation blocks orthonormal with det +1, last row [0,0,0,1], one base
 frame for all episodes); conversion to the bowl frame and to the contract's pose/wrench conventions (force

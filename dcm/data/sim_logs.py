@@ -156,9 +156,10 @@ def write_episode(episode: Path, signals: TrialSignals, fmt: str, conventions: R
 
 def simulate_logs(out: Path, fmt: str, demo_name: str = "wavelike", trials: int = 5, seed: int = 0,
                   embodiment: str = "tool", duration_s: float | None = None, schedules: Path | None = None,
-                  clean: bool = False, storage: str = "sqlite3", split: str = "train", progress: bool = True) -> int:
+                  clean: bool = False, storage: str = "sqlite3", split: str = "auto", progress: bool = True) -> int:
     """Simulate and write the trials; returns how many. ``out`` must not hold anything yet: the folder appears
-    complete or not at all."""
+    complete or not at all. ``split="auto"``: every proposal of a round is ``train``; of N >= 3 random trials
+    the last is ``test`` and the one before ``valid`` (fine-tuning and evaluation need both), the rest train."""
     from dcm.sim.demos import DemoSpec, DemoSpecError
     from dcm.sim.rollout import Simulator, SimulatorError
 
@@ -211,7 +212,7 @@ def simulate_logs(out: Path, fmt: str, demo_name: str = "wavelike", trials: int 
         except (SimulatorError, ValueError) as err:
             shutil.rmtree(partial, ignore_errors=True)
             raise SimLogsError(f"{name}: {err}") from None
-        meta = dict(round_meta, demo_id=0, trial=index, split=split)
+        meta = dict(round_meta, demo_id=0, trial=index, split=_split(split, index, len(runs), proposals is None))
         if proposal_id is not None:
             meta["proposal"] = proposal_id
         if trial.failed:
@@ -228,6 +229,14 @@ def simulate_logs(out: Path, fmt: str, demo_name: str = "wavelike", trials: int 
     return len(runs)
 
 
+def _split(split: str, index: int, n: int, random_trials: bool) -> str:
+    if split != "auto":
+        return split
+    if not random_trials or n < 3:
+        return "train"
+    return {n - 1: "test", n - 2: "valid"}.get(index, "train")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dcm.data.sim_logs",
                                      description="Run schedules in the simulator and write the trials as robot logs.")
@@ -241,7 +250,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="a tuner's proposals/round_<r> folder: run exactly its proposals instead")
     parser.add_argument("--embodiment", choices=("tool", "panda"), default="tool")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--split", choices=("train", "valid", "test"), default="train")
+    parser.add_argument("--split", choices=("auto", "train", "valid", "test"), default="auto",
+                        help="auto: of N >= 3 random trials the last is test and the one before valid; proposals train")
     parser.add_argument("--clean", action="store_true", help="no F/T bias, noise or timestamp jitter")
     args = parser.parse_args(argv)
     given = [flag for flag, value, default in (("--demo", args.demo, "wavelike"), ("--trials", args.trials, 5),
