@@ -15,7 +15,20 @@ from dcm.data.schema import FIELDS, load_dataset
 from dcm.data.sim_logs import load_demo_spec, random_schedules, trial_signals, write_episode
 from dcm.sim.rollout import Simulator
 
+# ROS 2 layouts: the episode folder is the bag directory itself (sqlite3); a lone .mcap next to meta.json.
 SOURCES = [("ros1", "sqlite3"), ("ros2", "sqlite3"), ("ros2", "mcap")]
+
+
+def _relayout(episode: Path, storage: str) -> None:
+    bag_dir = episode / "trial"
+    if storage == "sqlite3":
+        for path in bag_dir.iterdir():
+            path.rename(episode / path.name)
+    else:
+        (bag_dir / "trial.mcap").rename(episode / "trial.mcap")
+        for path in bag_dir.iterdir():
+            path.unlink()
+    bag_dir.rmdir()
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +56,9 @@ def test_bag_round_trip_returns_the_simulated_trial(tmp_path: Path, sim_trials: 
     the end effector, base-axis stiffness) all run and must cancel."""
     demo, trials = sim_trials
     logs = _write(tmp_path / "logs", fmt, storage, demo, trials, RobotConventions.clean())
+    if fmt == "ros2":
+        for episode in logs.iterdir():
+            _relayout(episode, storage)
     out = tmp_path / "real.h5"
     assert import_logs(logs, out, lowpass_hz=0.0) == 2
     data = load_dataset(out, split="train", expect_control_hz=20.0)

@@ -82,7 +82,7 @@ STREAM_COLUMNS = {"pose": 16, "wrench": 6, "stiffness": 6, "demo": 12, "attracto
 
 # ----------------------------------------------------------------------------------------------- reading
 def read_stream(episode: Path, name: str, required: bool = True) -> Stream | None:
-    """One ``<name>.csv`` / ``<name>.npz`` stream, sorted by time with exact duplicates dropped."""
+    """One ``<name>.csv`` / ``<name>.npz`` stream, sorted by time, repeated timestamps dropped."""
     n_columns = STREAM_COLUMNS[name]
     csv_path, npz_path = episode / f"{name}.csv", episode / f"{name}.npz"
     if npz_path.exists():

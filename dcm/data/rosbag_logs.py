@@ -206,6 +206,6 @@ def read_bag_episode(bag: Path, name: str, meta: dict[str, Any], meta_where: str
         raise LogFormatError(f"{bag}: not a readable ROS bag ({str(err).splitlines()[0] if str(err) else type(err).__name__})") from None
     return EpisodeStreams(
         name=name, meta=meta, meta_where=meta_where,
-        pose=Stream(state.t, state.values[:, :16], f"{state.where} {'O_T_EE'}"),
+        pose=Stream(state.t, state.values[:, :16], state.where),
         wrench=Stream(state.t, state.values[:, 16:], f"{state.where} {wrench_name}"),
         stiffness=stiffness, demo=demo, equilibrium=equilibrium)
