@@ -93,6 +93,27 @@ def test_csv_and_bag_routes_give_the_same_dataset(tmp_path: Path, sim_trials: tu
             assert meta_bag["episode"] == meta_csv["episode"]
 
 
+def test_a_ros2_bag_without_message_definitions_decodes_with_the_registered_ones(tmp_path: Path,
+                                                                                sim_trials: tuple) -> None:
+    """ROS 2 Humble's .db3 stores no message definitions: the franka_msgs definitions of the package decode it."""
+    import sqlite3
+
+    import yaml
+
+    demo, trials = sim_trials
+    logs = _write(tmp_path / "logs", "ros2", "sqlite3", demo, trials[:1], RobotConventions.clean())
+    bag = logs / "episode_000" / "trial"
+    with sqlite3.connect(bag / "trial.db3") as db:
+        db.execute("DELETE FROM message_definitions")
+    metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
+    for topic in metadata["rosbag2_bagfile_information"]["topics_with_message_count"]:
+        topic["topic_metadata"].pop("type_description_hash")
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(metadata))
+    import_logs(logs, tmp_path / "real.h5", lowpass_hz=0.0)
+    data = load_dataset(tmp_path / "real.h5", split="train")
+    np.testing.assert_allclose(data.arrays["F_obs"][0], trials[0].force_obs, atol=1e-4)
+
+
 def test_a_bag_without_a_needed_topic_is_refused_in_one_line(tmp_path: Path, sim_trials: tuple,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     demo, trials = sim_trials
