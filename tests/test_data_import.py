@@ -1,4 +1,7 @@
-"""Import of real Franka logs: synthetic logs with jitter, other rates, a bias and noise match the clean signal."""
+"""Import of real Franka logs: synthetic logs with jitter, other rates, a bias and noise match the clean signal.
+
+The logs are written by the product's robot-log writer (dcm.data.log_writer, also behind dcm-sim-logs) from
+analytic signals with rotations, which the simulated tool's trials lack."""
 
 from __future__ import annotations
 
@@ -8,17 +11,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
-from dcm.data.import_logs import NOMINAL_DOWN, LogFormatError, import_logs
+from dcm.data.import_logs import LogFormatError, import_logs
+from dcm.data.log_writer import RobotConventions, TrialSignals
 from dcm.data.schema import load_dataset
+from dcm.data.sim_logs import write_episode as write_log_episode
 from dcm.models.references import main as references_main
 
 CONTROL_HZ = 20.0
 START_S, END_S = 0.2, 6.2  # demo reference span -> H = 121
-BOWL_ROT = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # base yawed 90° from the bowl axes
-BOWL_ORIGIN = np.array([0.5, 0.1, 0.2])
-TIP_OFFSET = np.array([0.0, 0.0, 0.1])
 BIAS = np.array([1.0, -0.7, 2.5, 0.10, -0.05, 0.02])  # base frame, N and N·m
 NOISE_STD = np.array([0.5, 0.5, 0.5, 0.02, 0.02, 0.02])
 
@@ -43,51 +44,31 @@ def clean_wrench(t: np.ndarray) -> np.ndarray:
                      0.05 * np.sin(t) * r, 0.03 * r, 0.02 * r], axis=1)
 
 
-def _write_csv(path: Path, header: list[str], t: np.ndarray, values: np.ndarray) -> None:
-    with path.open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(header)
-        writer.writerows(np.column_stack([t, values]).tolist())
-
-
-def write_episode(root: Path, name: str, rng: np.random.Generator, base_frame: str = "panda_link0",
-                  column_major: bool = True) -> None:
-    """A synthetic log as a Franka would record it (the input format of dcm.data.import_logs)."""
-    episode = root / name
-    episode.mkdir(parents=True)
-    # pose stream: 1 kHz with ±0.2 ms jitter
-    pose_t = np.arange(-0.01, 6.5, 1e-3) + rng.uniform(-2e-4, 2e-4, size=len(np.arange(-0.01, 6.5, 1e-3)))
-    pose = clean_pose(pose_t)
-    rot_rel = Rotation.from_rotvec(pose[:, 3:]).as_matrix()
-    rot_base = BOWL_ROT @ rot_rel @ BOWL_ROT.T @ NOMINAL_DOWN
-    tip_base = pose[:, :3] @ BOWL_ROT.T + BOWL_ORIGIN
-    flange_base = tip_base - rot_base @ TIP_OFFSET
-    transforms = np.tile(np.eye(4), (len(pose_t), 1, 1))
-    transforms[:, :3, :3], transforms[:, :3, 3] = rot_base, flange_base
-    flat = transforms.reshape(-1, 16, order="F" if column_major else "C")
-    _write_csv(episode / "pose.csv", ["t"] + [f"T{i}" for i in range(16)], pose_t, flat)
-    # wrench stream: 500 Hz with ±0.3 ms jitter, O_F_ext_hat_K (base axes, torque about the flange), bias, noise
-    wrench_t = np.arange(0.0, 6.5, 2e-3)
-    wrench_t = wrench_t + rng.uniform(-3e-4, 3e-4, size=len(wrench_t))
-    wrench = clean_wrench(wrench_t)
-    rot_w = BOWL_ROT @ Rotation.from_rotvec(clean_pose(wrench_t)[:, 3:]).as_matrix() @ BOWL_ROT.T @ NOMINAL_DOWN
-    force_base = wrench[:, :3] @ BOWL_ROT.T
-    torque_tip_base = wrench[:, 3:] @ BOWL_ROT.T
-    torque_flange_base = torque_tip_base + np.cross(np.einsum("nij,j->ni", rot_w, TIP_OFFSET), force_base)
-    logged = np.column_stack([force_base, torque_flange_base]) + BIAS + rng.normal(size=(len(wrench_t), 6)) * NOISE_STD
-    _write_csv(episode / "wrench.csv", ["t", "Fx", "Fy", "Fz", "Tx", "Ty", "Tz"], wrench_t, logged)
-    # commanded stiffness in base axes (Kx != Ky to check the axis permutation), three phases
-    _write_csv(episode / "stiffness.csv", ["t", "Kx", "Ky", "Kz", "Krx", "Kry", "Krz"], np.array([-0.1, 2.0, 4.0]),
-               np.array([[300, 900, 500, 20, 20, 20], [1200, 400, 800, 20, 20, 20], [600, 600, 200, 20, 20, 20.0]]))
-    # demo reference at 20 Hz in the bowl frame
+def write_episode(root: Path, name: str, rng: np.random.Generator, base_frame: str = "panda_link0") -> None:
+    """A synthetic trial written as a Franka logs it: 500 Hz state with ±0.2 ms jitter, the bowl turned 90° in
+    the base frame, a 0.1 m tool, O_F_ext_hat_K with a bias and noise, three stiffness phases (Kx != Ky in the
+    bowl frame, to check the axis permutation) and a 20 Hz demo reference."""
+    obs_t = np.arange(0.0, 6.5, 1e-3)
     demo_t = np.arange(START_S, END_S + 1e-9, 1 / CONTROL_HZ)
-    _write_csv(episode / "demo.csv", ["t", "x", "y", "z", "rx", "ry", "rz", "Fx", "Fy", "Fz", "Tx", "Ty", "Tz"],
-               demo_t, np.column_stack([clean_pose(demo_t), clean_wrench(demo_t) * 1.1]))
-    (episode / "meta.json").write_text(json.dumps({
-        "demo_id": 0, "trial": int(name[-1]), "split": "train" if name[-1] != "2" else "test", "skill": "spiral",
-        "base_frame": base_frame, "bowl_in_base": np.vstack([np.column_stack([BOWL_ROT, BOWL_ORIGIN]),
-                                                             [0, 0, 0, 1]]).tolist(),
-        "free_motion_s": [0.0, 0.9], "tip_offset_m": TIP_OFFSET.tolist()}))
+    signals = TrialSignals(
+        obs_t_s=obs_t, pose=clean_pose(obs_t), wrench=clean_wrench(obs_t),
+        command_t_s=np.array([0.0, 2.0, 4.0]), attractor=None,
+        stiffness=np.array([[900, 300, 500, 20, 20, 20], [400, 1200, 800, 20, 20, 20], [600, 600, 200, 20, 20, 20.0]]),
+        demo_t_s=demo_t, demo=np.column_stack([clean_pose(demo_t), clean_wrench(demo_t) * 1.1]),
+        meta={"demo_id": 0, "trial": int(name[-1]), "split": "train" if name[-1] != "2" else "test", "skill": "spiral",
+              "free_motion_s": [0.0, 0.9]})
+    conventions = RobotConventions(base_frame=base_frame, state_hz=500.0, bias=tuple(BIAS), noise_std=tuple(NOISE_STD))
+    write_log_episode(root / name, signals, "csv", conventions, rng)
+
+
+def _to_row_major(pose_csv: Path) -> None:
+    """Rewrite O_T_EE row-major, the mistake the importer must catch."""
+    with pose_csv.open() as handle:
+        rows = list(csv.reader(handle))
+    table = np.array(rows[1:], dtype=np.float64)
+    flat = table[:, 1:].reshape(-1, 4, 4, order="F").reshape(-1, 16)
+    with pose_csv.open("w", newline="") as handle:
+        csv.writer(handle).writerows([rows[0]] + np.column_stack([table[:, 0], flat]).tolist())
 
 
 def test_import_matches_clean_signal(tmp_path: Path) -> None:
@@ -123,7 +104,8 @@ def test_import_matches_clean_signal(tmp_path: Path) -> None:
 
 def test_import_rejects_bad_frames(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
-    write_episode(tmp_path / "rowmajor", "episode_0", rng, column_major=False)
+    write_episode(tmp_path / "rowmajor", "episode_0", rng)
+    _to_row_major(tmp_path / "rowmajor" / "episode_0" / "pose.csv")
     with pytest.raises(LogFormatError, match=r"episode_0.*pose.*not a rigid transform.*column-major"):
         import_logs(tmp_path / "rowmajor", tmp_path / "x.h5")
     write_episode(tmp_path / "mixed", "episode_0", rng)

@@ -11,7 +11,7 @@ REPO = Path(__file__).resolve().parents[1]
 MODULE = r"(dcm(?:\.\w+)+)(?::\w+)?"  # a string naming a module (or module:attribute) loaded by name
 
 # The user journeys: the two root entries and the console scripts' modules.
-ENTRY_MODULES = ("train", "tune", "dcm.data.generate", "dcm.data.import_logs", "dcm.data.merge",
+ENTRY_MODULES = ("train", "tune", "dcm.data.generate", "dcm.data.import_logs", "dcm.data.sim_logs", "dcm.data.merge",
                  "dcm.data.inspect", "dcm.evaluate", "dcm.sim.render", "dcm.models.checkpoint", "dcm.training.export",
                  "dcm.models.references")
 

@@ -1,8 +1,13 @@
 """Import real Franka logs into the dataset format, so robot data and simulated data train the same model.
 
     python -m dcm.data.import_logs logs/ --out data/real.h5 [--control-hz 20] [--lowpass-hz 5] [--overwrite]
+        [--topics topics.yaml] [--state-topic T] [--stiffness-topic T] [--equilibrium-topic T]
 
-Input format: one directory per episode (one stiffness trial) under ``<log_dir>``, processed in name order::
+Input format: one directory per episode (one stiffness trial) under ``<log_dir>``, processed in name order.
+Its streams come from CSV/npz files or from one ROS bag in the directory (``*.bag``; a ROS 2 bag directory,
+``*.db3`` or ``*.mcap``; see :mod:`dcm.data.rosbag_logs` for topics and message types); ``meta.json`` and
+``demo.csv`` are always files. Either way the streams take one processing path
+(:func:`dcm.data.log_episode.process_episode`)::
 
     <log_dir>/<episode>/
         meta.json       see below
@@ -18,8 +23,10 @@ Input format: one directory per episode (one stiffness trial) under ``<log_dir>`
         demo.csv        t, x, y, z, rx, ry, rz, Fx, Fy, Fz, Tx, Ty, Tz
                                           the demo reference in the dataset's conventions (bowl frame, pose as
                                           position + rotation vector from "tool pointing down", contact wrench)
-        attractor.csv   t, x, y, z, rx, ry, rz   (optional) the attractor the controller used, bowl frame;
-                                          when absent it is recomputed from the demo and K (paper's equation)
+        equilibrium.csv t, T0..T15        (optional) the controller's equilibrium (attractor) pose, base frame,
+                                          end effector, column-major as O_T_EE
+        attractor.csv   t, x, y, z, rx, ry, rz   (optional) the attractor already in the bowl frame; with neither
+                                          file it is recomputed from the demo and K (paper's equation)
 
     Instead of ``<name>.csv`` a ``<name>.npz`` with arrays ``t`` (N,) and ``values`` (N, C) is accepted.
     Each stream carries its own timestamps [s] (any common clock, jitter and different rates are fine).
@@ -34,7 +41,8 @@ Input format: one directory per episode (one stiffness trial) under ``<log_dir>`
         tip_offset_m (optional, default [0,0,0]): tool-tip position in the EE frame, if O_T_EE is not the tip;
                       the stiffness frame K is assumed to coincide with the EE frame,
         nominal_rotation (optional): 3x3 row-major base-frame rotation of the "tool pointing straight down"
-                      pose (default diag(1, -1, -1), Franka's usual downward flange).
+                      pose (default diag(1, -1, -1), Franka's usual downward flange),
+        proposal, round (optional): copied to the trajectory, so observations find the proposals they ran.
 
 Processing, in order: frame checks (rotation blocks orthonormal with det +1, last row [0,0,0,1], one base
 frame for all episodes); conversion to the bowl frame and to the contract's pose/wrench conventions (force
@@ -55,20 +63,26 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from dcm.cli import JSONFileError, load_json, quiet_libraries
+from dcm.cli import quiet_libraries
+from dcm.data.log_episode import (
+    NOMINAL_DOWN,
+    EpisodeStreams,
+    LogFormatError,
+    Stream,
+    clean_stream,
+    load_meta,
+    process_episode,
+)
+from dcm.data.rosbag_logs import add_topic_arguments, topics_from_arguments
 from dcm.data.schema import DatasetError, write_dataset
 
-NOMINAL_DOWN = np.diag([1.0, -1.0, -1.0])
-STREAM_COLUMNS = {"pose": 16, "wrench": 6, "stiffness": 6, "demo": 12, "attractor": 6}
-
-
-class LogFormatError(ValueError):
-    """A log episode that breaks the input format: names the episode, the file and what is wrong."""
+__all__ = ["NOMINAL_DOWN", "LogFormatError", "import_logs", "main"]
+STREAM_COLUMNS = {"pose": 16, "wrench": 6, "stiffness": 6, "demo": 12, "attractor": 6, "equilibrium": 16}
 
 
 # ----------------------------------------------------------------------------------------------- reading
-def read_stream(episode: Path, name: str, required: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
-    """(t (N,), values (N, C)) of one stream, sorted by time with exact duplicates dropped."""
+def read_stream(episode: Path, name: str, required: bool = True) -> Stream | None:
+    """One ``<name>.csv`` / ``<name>.npz`` stream, sorted by time, repeated timestamps dropped."""
     n_columns = STREAM_COLUMNS[name]
     csv_path, npz_path = episode / f"{name}.csv", episode / f"{name}.npz"
     if npz_path.exists():
@@ -94,180 +108,47 @@ def read_stream(episode: Path, name: str, required: bool = True) -> tuple[np.nda
         raise LogFormatError(f"{episode}: missing {name}.csv (or {name}.npz)")
     else:
         return None
-    if values.ndim != 2 or values.shape[1] != n_columns or len(t) != len(values):
-        raise LogFormatError(f"{where}: expected a time column and {n_columns} value columns, got {values.shape}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(values))):
-        row = int(np.argwhere(~np.isfinite(np.column_stack([t, values])))[0, 0])
-        raise LogFormatError(f"{where}: NaN or inf in data row {row + 1}")
-    order = np.argsort(t, kind="stable")
-    t, values = t[order], values[order]
-    keep = np.concatenate([[True], np.diff(t) > 0])
-    return t[keep], values[keep]
+    return clean_stream(t, values, str(where), n_columns)
 
 
-def _matrix(value: Any, shape: tuple[int, int], where: str) -> np.ndarray:
-    array = np.asarray(value, dtype=np.float64)
-    if array.shape != shape:
-        raise LogFormatError(f"{where}: expected a {shape} matrix (row-major nested lists), got shape {array.shape}")
-    return array
+def read_folder_episode(episode: Path, meta: dict[str, Any], meta_where: str) -> EpisodeStreams:
+    """The streams of a CSV/npz episode folder."""
+    return EpisodeStreams(
+        name=episode.name, meta=meta, meta_where=meta_where,
+        pose=read_stream(episode, "pose"), wrench=read_stream(episode, "wrench"),
+        stiffness=read_stream(episode, "stiffness"), demo=read_stream(episode, "demo"),
+        equilibrium=read_stream(episode, "equilibrium", required=False),
+        attractor=read_stream(episode, "attractor", required=False))
 
 
-# ----------------------------------------------------------------------------------------------- geometry
-def rotation_to_rotvec(rotation: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) -> rotation vectors (..., 3) (log map, stable near 0 and pi)."""
-    from scipy.spatial.transform import Rotation
+def read_episode(episode: Path, topics: dict[str, str | None] | None = None) -> EpisodeStreams:
+    """An episode directory's streams, from its ROS bag when it holds one, else from its CSV/npz files."""
+    from dcm.data.rosbag_logs import find_bag, read_bag_episode
 
-    return Rotation.from_matrix(rotation.reshape(-1, 3, 3)).as_rotvec().reshape(*rotation.shape[:-2], 3)
-
-
-def check_transforms(transforms: np.ndarray, where: str, tol: float = 1e-3) -> None:
-    """Homogeneous transforms (N,4,4): orthonormal rotation with det +1 and last row [0,0,0,1]."""
-    rotation = transforms[:, :3, :3]
-    ortho_err = np.abs(np.einsum("nji,njk->nik", rotation, rotation) - np.eye(3)).max(axis=(1, 2))
-    det = np.linalg.det(rotation)
-    bottom_err = np.abs(transforms[:, 3, :] - np.array([0, 0, 0, 1.0])).max(axis=1)
-    bad = np.flatnonzero((ortho_err > tol) | (np.abs(det - 1) > tol) | (bottom_err > tol))
-    if bad.size:
-        i = int(bad[0])
-        raise LogFormatError(
-            f"{where}: row {i + 1} is not a rigid transform (|R^T R - I| = {ortho_err[i]:.2e}, det R = {det[i]:.4f}, "
-            f"last row {transforms[i, 3].tolist()}); is O_T_EE flattened column-major?"
-        )
+    meta, meta_where = load_meta(episode)
+    bag = find_bag(episode)
+    if bag is None:
+        return read_folder_episode(episode, meta, meta_where)
+    if (episode / "pose.csv").exists() or (episode / "pose.npz").exists():
+        raise LogFormatError(f"{episode}: holds both a pose stream file and the bag {bag.name}; keep one source")
+    demo = read_stream(episode, "demo")
+    return read_bag_episode(bag, episode.name, meta, meta_where, demo, topics)
 
 
-def lowpass(t: np.ndarray, values: np.ndarray, cutoff_hz: float, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-phase Butterworth low-pass on a uniform grid at the stream's median rate (returned with its grid)."""
-    from scipy.signal import butter, sosfiltfilt
-
-    rate_hz = 1.0 / float(np.median(np.diff(t)))
-    grid = np.arange(t[0], t[-1] + 0.5 / rate_hz, 1.0 / rate_hz)
-    uniform = np.column_stack([np.interp(grid, t, values[:, c]) for c in range(values.shape[1])])
-    if cutoff_hz <= 0:
-        return grid, uniform
-    if cutoff_hz >= 0.5 * rate_hz:
-        raise LogFormatError(f"low-pass cut-off {cutoff_hz} Hz is not below the stream's Nyquist rate "
-                             f"{rate_hz / 2:.1f} Hz")
-    sos = butter(order, cutoff_hz, fs=rate_hz, output="sos")
-    return grid, sosfiltfilt(sos, uniform, axis=0)
-
-
-def _resample(t: np.ndarray, values: np.ndarray, grid: np.ndarray, where: str) -> np.ndarray:
-    if grid[0] < t[0] - 1e-9 or grid[-1] > t[-1] + 1e-9:
-        raise LogFormatError(f"{where}: covers {t[0]:.3f}..{t[-1]:.3f} s, the control grid needs "
-                             f"{grid[0]:.3f}..{grid[-1]:.3f} s")
-    return np.column_stack([np.interp(grid, t, values[:, c]) for c in range(values.shape[1])])
-
-
-def _zero_order_hold(t: np.ndarray, values: np.ndarray, grid: np.ndarray, where: str) -> np.ndarray:
-    if grid[0] < t[0] - 1e-9:
-        raise LogFormatError(f"{where}: first command at {t[0]:.3f} s, after control step 0 at {grid[0]:.3f} s")
-    index = np.searchsorted(t, grid + 1e-9, side="right") - 1
-    return values[index]
-
-
-# ----------------------------------------------------------------------------------------------- episode
 def import_episode(episode: Path, control_hz: float, horizon: int | None, lowpass_hz: float, lowpass_order: int,
-                   contact_threshold_N: float) -> dict[str, Any]:
-    """One episode -> one trajectory dict for ``write_dataset``."""
-    from dcm.control.impedance import attractor_from_demo
-    from dcm.control.objectives import compliance_loss, task_loss
-
-    meta_path = episode / "meta.json"
-    if not meta_path.exists():
-        raise LogFormatError(f"{episode}: missing meta.json")
-    try:
-        meta = load_json(meta_path)
-    except JSONFileError as err:
-        raise LogFormatError(str(err)) from None
-    if not isinstance(meta, dict):
-        raise LogFormatError(f"{meta_path}: expected a JSON object {{...}}, got {type(meta).__name__}")
-    for key in ("demo_id", "bowl_in_base", "free_motion_s", "base_frame"):
-        if key not in meta:
-            raise LogFormatError(f"{meta_path}: missing key {key!r}")
-    bowl_in_base = _matrix(meta["bowl_in_base"], (4, 4), f"{meta_path} bowl_in_base")
-    check_transforms(bowl_in_base[None], f"{meta_path} bowl_in_base")
-    nominal = _matrix(meta.get("nominal_rotation", NOMINAL_DOWN), (3, 3), f"{meta_path} nominal_rotation")
-    tip_offset = np.asarray(meta.get("tip_offset_m", [0.0, 0.0, 0.0]), dtype=np.float64)
-    base_to_bowl_R = bowl_in_base[:3, :3].T
-    bowl_origin = bowl_in_base[:3, 3]
-
-    pose_t, pose_raw = read_stream(episode, "pose")
-    wrench_t, wrench_raw = read_stream(episode, "wrench")
-    stiff_t, stiff_raw = read_stream(episode, "stiffness")
-    demo_t, demo_raw = read_stream(episode, "demo")
-    attractor = read_stream(episode, "attractor", required=False)
-
-    # O_T_EE is column-major: reshape in Fortran order to get the usual matrix.
-    transforms = pose_raw.reshape(-1, 4, 4, order="F")
-    check_transforms(transforms, f"{episode / 'pose'}.csv (O_T_EE)")
-    rot_base = transforms[:, :3, :3]
-    tip_base = transforms[:, :3, 3] + rot_base @ tip_offset
-    position_bowl = (tip_base - bowl_origin) @ base_to_bowl_R.T
-    rot_bowl = base_to_bowl_R @ rot_base
-    rotvec_bowl = rotation_to_rotvec(rot_bowl @ (base_to_bowl_R @ nominal).T)
-    pose_bowl = np.column_stack([position_bowl, rotvec_bowl])
-
-    # Wrench: into base axes (if logged in K), bias from free motion, then bowl axes and torque about the tip.
-    wrench = wrench_raw.copy()
-    if meta.get("wrench_frame", "base") == "K":
-        rot_at_wrench = rot_base[np.clip(np.searchsorted(pose_t, wrench_t), 0, len(pose_t) - 1)]
-        wrench[:, :3] = np.einsum("nij,nj->ni", rot_at_wrench, wrench[:, :3])
-        wrench[:, 3:] = np.einsum("nij,nj->ni", rot_at_wrench, wrench[:, 3:])
-    t0, t1 = map(float, meta["free_motion_s"])
-    window = (wrench_t >= t0) & (wrench_t <= t1)
-    if window.sum() < 10:
-        raise LogFormatError(f"{meta_path}: free_motion_s {meta['free_motion_s']} holds {int(window.sum())} wrench "
-                             "samples; need >= 10 to estimate the bias")
-    bias = wrench[window].mean(axis=0)
-    wrench = wrench - bias
-    filt_t, wrench_filt = lowpass(wrench_t, wrench, lowpass_hz, lowpass_order)
-
-    start = float(meta.get("start_s", demo_t[0]))
-    if horizon is None:
-        end = min(pose_t[-1], wrench_t[-1], demo_t[-1])
-        horizon = int(np.floor((end - start) * control_hz + 1e-9)) + 1
-    grid = start + np.arange(horizon) / control_hz
-    x_obs = _resample(pose_t, pose_bowl, grid, f"{episode / 'pose.csv'}")
-    # rotate the filtered wrench into bowl axes, then move the torque from the stiffness frame to the tool tip
-    wrench_grid_base = _resample(filt_t, wrench_filt, grid, f"{episode / 'wrench.csv'}")
-    rot_grid = rot_base[np.clip(np.searchsorted(pose_t, grid), 0, len(pose_t) - 1)]
-    force_base = wrench_grid_base[:, :3]
-    torque_tip_base = wrench_grid_base[:, 3:] - np.cross(np.einsum("nij,j->ni", rot_grid, tip_offset), force_base)
-    F_obs = np.column_stack([force_base @ base_to_bowl_R.T, torque_tip_base @ base_to_bowl_R.T])
-    K_base = _zero_order_hold(stiff_t, stiff_raw, grid, f"{episode / 'stiffness.csv'}")
-    # a diagonal stiffness stays diagonal under the base->bowl rotation only if that is an axis permutation
-    if not np.allclose(np.abs(base_to_bowl_R), np.abs(base_to_bowl_R).round(), atol=1e-6):
-        raise LogFormatError(f"{meta_path}: bowl_in_base rotation is not an axis permutation; a diagonal base-frame "
-                             "stiffness has no diagonal bowl-frame equivalent")
-    permutation = np.abs(base_to_bowl_R)
-    K = np.column_stack([K_base[:, :3] @ permutation.T, K_base[:, 3:] @ permutation.T])
-    if np.any(K <= 0):
-        raise LogFormatError(f"{episode / 'stiffness.csv'}: non-positive stiffness {K[K <= 0][0]}")
-    demo_grid = _resample(demo_t, demo_raw, grid, f"{episode / 'demo.csv'}")
-    x_demo, F_demo = demo_grid[:, :6], demo_grid[:, 6:]
-    if attractor is not None:
-        x_attr = _resample(*attractor, grid, f"{episode / 'attractor.csv'}")
-    else:
-        x_attr = attractor_from_demo(x_demo, F_demo, K, 1.0 / control_hz)
-    contact = np.abs(F_obs[:, 2]) > contact_threshold_N
-    return {
-        "name": None,
-        "x_demo": x_demo, "F_demo": F_demo, "x_attr": x_attr, "K": K, "x_obs": x_obs, "F_obs": F_obs,
-        "contact": contact,
-        "L_task": float(task_loss(F_obs, F_demo)), "L_comp": float(compliance_loss(K)),
-        "failed": False, "failure_reason": "",
-        "demo_id": int(meta["demo_id"]), "trial": int(meta.get("trial", 0)), "skill": str(meta.get("skill", "")),
-        "split": str(meta.get("split", "train")), "demo": meta.get("demo", {}),
-        "bowl": (meta.get("demo") or {}).get("bowl", {}), "embodiment": "franka_real", "domain": {"name": "real"},
-        "seed": -1, "episode": episode.name, "base_frame": str(meta["base_frame"]), "bias_removed": bias.tolist(),
-        "horizon": horizon,
-    }
+                   contact_threshold_N: float, topics: dict[str, str | None] | None = None) -> dict[str, Any]:
+    """One episode directory -> one trajectory dict for ``write_dataset``."""
+    return process_episode(read_episode(episode, topics), control_hz, horizon, lowpass_hz, lowpass_order,
+                           contact_threshold_N)
 
 
 def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, horizon: int | None = None,
                 lowpass_hz: float = 5.0, lowpass_order: int = 2, contact_threshold_N: float = 1.0,
-                overwrite: bool = False) -> int:
+                overwrite: bool = False, topics: dict[str, str | None] | None = None) -> int:
     """Import every episode directory of ``log_dir`` into one dataset file; returns the trajectory count.
+
+    ``topics`` overrides the bag topics (keys of :data:`dcm.data.rosbag_logs.DEFAULT_TOPICS`); CSV episodes
+    ignore it.
 
     An existing ``out`` is replaced only with ``overwrite`` (then atomically, once the import succeeded), as
     :mod:`dcm.data.generate` does: an earlier import may be all that is left of logs since deleted."""
@@ -279,7 +160,7 @@ def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, 
         raise LogFormatError(f"{log_dir}: no episode directories")
     trajectories = []
     for episode in episodes:
-        traj = import_episode(episode, control_hz, horizon, lowpass_hz, lowpass_order, contact_threshold_N)
+        traj = import_episode(episode, control_hz, horizon, lowpass_hz, lowpass_order, contact_threshold_N, topics)
         horizon = traj.pop("horizon")  # the first episode fixes H for the file
         trajectories.append(traj)
     frames = {t["base_frame"] for t in trajectories}
@@ -299,7 +180,7 @@ def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, 
         "import_bias": "mean wrench over each episode's free_motion_s window, subtracted",
         "import_resampling": "linear interpolation onto t_k = start_s + k / control_hz; stiffness zero-order hold",
         "import_contact_threshold_N": float(contact_threshold_N),
-        "config": {"log_dir": str(log_dir), "control_hz": control_hz, "horizon": horizon,
+        "config": {"log_dir": str(log_dir), "control_hz": control_hz, "horizon": horizon, "topics": topics,
                    "lowpass_hz": lowpass_hz, "lowpass_order": lowpass_order,
                    "contact_threshold_N": contact_threshold_N},
     }
@@ -318,14 +199,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--lowpass-hz", type=float, default=5.0, help="wrench cut-off; 0 disables the filter")
     parser.add_argument("--lowpass-order", type=int, default=2)
     parser.add_argument("--contact-threshold-N", type=float, default=1.0)
+    add_topic_arguments(parser)
     args = parser.parse_args(argv)
     quiet_libraries()
     if args.out.exists() and not args.overwrite:
         print(f"error: {args.out} exists; pass --overwrite to replace it, or choose another --out", file=sys.stderr)
         return 1
     try:
+        topics = topics_from_arguments(args)
         n = import_logs(args.log_dir, args.out, args.control_hz, args.horizon, args.lowpass_hz, args.lowpass_order,
-                        args.contact_threshold_N, overwrite=args.overwrite)
+                        args.contact_threshold_N, overwrite=args.overwrite, topics=topics)
     except (LogFormatError, DatasetError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

@@ -1,0 +1,86 @@
+"""dcm-sim-logs: simulated trials as robot logs, random or a tuner's round of proposals, refusals in one line."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from dcm.data.import_logs import import_logs
+from dcm.data.schema import load_dataset
+from dcm.data.sim_logs import PROPOSAL_K, load_demo_spec, main
+from dcm.sim.rollout import Simulator
+
+HEADER = (["t_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"] + PROPOSAL_K
+          + ["Dx_Nspm", "Dy_Nspm", "Dz_Nspm", "Drx_Nmsprad", "Dry_Nmsprad", "Drz_Nmsprad"])
+
+
+def _round(tmp_path: Path, levels: list[list[float]]) -> tuple[Path, list[np.ndarray]]:
+    """A proposals/round_1 folder as the tuner writes it: round.yaml and one CSV per proposal."""
+    spec = load_demo_spec("wavelike", 2.0)
+    sim = Simulator("tool")
+    demo = sim.record_demo(spec)
+    round_dir = tmp_path / "run" / "proposals" / "round_1"
+    round_dir.mkdir(parents=True)
+    proposals, schedules = [], []
+    for i, phase_levels in enumerate(levels):
+        K = np.full((demo.horizon, 6), 20.0)
+        for phase, rows in enumerate(np.array_split(np.arange(demo.horizon), len(phase_levels))):
+            K[rows, :3] = phase_levels[phase]
+        attractor = sim.attractor(demo, K)
+        table = np.column_stack([np.arange(demo.horizon) / 20.0, attractor, K, 2 * np.sqrt(K)])
+        with (round_dir / f"p{i}.csv").open("w", newline="") as handle:
+            csv.writer(handle).writerows([HEADER] + table.tolist())
+        proposals.append({"id": f"p{i}", "file": f"p{i}.csv", "phase_stiffness_Npm": [[v] * 3 for v in phase_levels]})
+        schedules.append(K)
+    (round_dir / "round.yaml").write_text(yaml.safe_dump({
+        "round": 1, "control_hz": 20.0, "demo": spec.to_dict(), "embodiment": "tool", "frame": "bowl",
+        "proposals": proposals}))
+    return round_dir, schedules
+
+
+def test_a_round_of_proposals_becomes_one_episode_per_proposal(tmp_path: Path) -> None:
+    round_dir, schedules = _round(tmp_path, [[300.0, 900.0], [1200.0, 500.0]])
+    out = tmp_path / "logs"
+    assert main(["--schedules", str(round_dir), "--format", "ros2", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["p0", "p1"]
+    import_logs(out, tmp_path / "observed.h5")
+    data = load_dataset(tmp_path / "observed.h5", split="train")
+    assert [m["proposal"] for m in data.meta] == ["p0", "p1"] and {m["round"] for m in data.meta} == {1}
+    for k, K in enumerate(schedules):
+        np.testing.assert_allclose(data.arrays["K"][k], K)
+    assert data.meta[0]["demo"]["duration_s"] == 2.0
+
+
+def test_bad_rounds_and_outputs_are_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    round_dir, _ = _round(tmp_path, [[300.0, 900.0]])
+    out = tmp_path / "logs"
+    assert main(["--schedules", str(round_dir), "--trials", "3", "--out", str(out)]) == 1
+    assert "drop --trials" in capsys.readouterr().err
+    rows = (round_dir / "p0.csv").read_text().splitlines()
+    shifted = np.array([r.split(",") for r in rows[1:]], dtype=float)
+    shifted[20:, 1] += 0.005  # another demo's attractor from step 20 on
+    (round_dir / "p0.csv").write_text("\n".join([rows[0]] + [",".join(map(repr, r)) for r in shifted.tolist()]) + "\n")
+    assert main(["--schedules", str(round_dir), "--out", str(out)]) == 1
+    assert "p0: attractor at step 20 is 5.0 mm from the one the simulator computes" in capsys.readouterr().err
+    (round_dir / "p0.csv").write_text("\n".join(rows[:-5]) + "\n")
+    assert main(["--schedules", str(round_dir), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "p0: 35 rows, the round's demo has 40 control steps" in err
+    assert not out.exists()
+    out.mkdir()
+    (out / "keep.txt").write_text("earlier logs")
+    assert main(["--trials", "1", "--duration-s", "2", "--out", str(out)]) == 1
+    assert "exists and is not empty" in capsys.readouterr().err
+    assert (out / "keep.txt").read_text() == "earlier logs" and len(list(out.iterdir())) == 1
+
+
+def test_same_seed_same_bytes(tmp_path: Path) -> None:
+    for name in ("a", "b"):
+        assert main(["--trials", "2", "--duration-s", "2", "--seed", "3", "--out", str(tmp_path / name)]) == 0
+    files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
+    assert len(files) == 12
+    assert all((tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes() for f in files)
