@@ -35,12 +35,13 @@ CORRECTIONS = ("gp", "none")
 COUNTS = (5, 10, 15)
 
 
-def tune_config(ckpt: str, demo: str, seed: int, out_dir: Path, *extra: str) -> Any:
+def tune_config(ckpt: str, demo: str, seed: int, out_dir: Path, overrides: list[str], *extra: str) -> Any:
+    """``conf/quickstart.yaml`` for one case; ``overrides``: the study's own (e.g. a faster embodiment)."""
     from hydra import compose, initialize_config_dir
 
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
         return compose("quickstart", overrides=[f"ckpt={ckpt}", f"demo={demo}", f"seed={seed}", f"out_dir={out_dir}",
-                                                "robot_based.n_trials=0", "torch_threads=1", *extra])
+                                                "robot_based.n_trials=0", "torch_threads=1", *overrides, *extra])
 
 
 class Judge:
@@ -97,9 +98,9 @@ def run_case(ckpt: str, demo: str, seed: int, out: Path, args: argparse.Namespac
         if correction != CORRECTIONS[0] and first.is_file() and not (folder / "robot_free_trials.npz").is_file():
             folder.mkdir(parents=True, exist_ok=True)
             shutil.copy(first, folder / "robot_free_trials.npz")  # the same robot-free search: replayed, not re-run
-        cfg = tune_config(ckpt, demo, seed, folder, *loop_extra, f"loop.correction={correction}")
+        cfg = tune_config(ckpt, demo, seed, folder, args.override, *loop_extra, f"loop.correction={correction}")
         loops[correction] = tune(cfg, folder)["loop"]
-    cfg = tune_config(ckpt, demo, seed, work, *loop_extra)
+    cfg = tune_config(ckpt, demo, seed, work, args.override, *loop_extra)
     reference_info = loops[CORRECTIONS[0]]["reference_point"]
     reference = np.array([reference_info["L_task_N"], reference_info["L_comp_kNpm"]])
     checked = check_config(cfg)
@@ -174,6 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--free-trials", dest="free_trials", type=int, default=1000)
     parser.add_argument("--loop-trials", dest="loop_trials", type=int, default=200)
     parser.add_argument("--robot-based", dest="robot_based", nargs="+", type=int, default=[20, 50])
+    parser.add_argument("--override", nargs="*", default=[], help="tune.py overrides for every case")
     parser.add_argument("--report", type=Path, default=None, help="write the report of --out's finished cases")
     args = parser.parse_args(argv)
     if args.report is not None:
