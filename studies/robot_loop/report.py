@@ -47,7 +47,8 @@ def report(cases: list[dict[str, Any]]) -> str:
             cells.append(f"{np.median(values):.4f} ({min(values):.3f}..{max(values):.3f})")
         lines.append(f"| {arm} | {trials} | " + " | ".join(cells) + " |")
     lines += ["", "## Paired over cases (tuning-seed level: one checkpoint, so not a claim about the recipe)", "",
-              "| a | b | median I_H(a) - I_H(b) | a better | ties | n | Wilcoxon p (two-sided) |", "|---|---|---|---|---|---|---|"]
+              "| a | b | median I_H(a) - I_H(b) | a better | ties | n | Wilcoxon p (two-sided) |",
+              "|---|---|---|---|---|---|---|"]
     for a, others in (("loop_gp_15", [x for x in arms if x != "loop_gp_15"]),
                       ("loop_gp_10", ["one_shot_5", "prior_15", "robot_based_20"]),
                       ("loop_none_15", ["one_shot_5", "prior_15", "robot_based_50"])):
