@@ -53,12 +53,13 @@ def _observe(cfg, proposals: np.ndarray, path: Path, **changes) -> Path:
 def test_the_simulator_robot_runs_rounds_until_the_budget_and_the_same_seed_gives_the_same_bytes(
         tiny_checkpoint: Path, tmp_path: Path):
     demo = short_wave_demo(tmp_path)
-    runs = {}
-    for name in "ab":
-        out = tmp_path / name
-        runs[name] = tune(_config(tiny_checkpoint, demo, out, "robot=sim", "loop.rounds=2", "loop.tolerance_N=0"),
-                          out)["loop"]
-    loop = runs["a"]
+    loop = tune(_config(tiny_checkpoint, demo, tmp_path / "a", "robot=sim", "loop.rounds=2", "loop.tolerance_N=0"),
+                tmp_path / "a")["loop"]
+    # The same run stopped by a budget of one round, then resumed with a budget of two, ends in the same bytes.
+    first = tune(_config(tiny_checkpoint, demo, tmp_path / "b", "robot=sim", "loop.rounds=1", "loop.tolerance_N=0"),
+                 tmp_path / "b")["loop"]
+    assert first["stopped"]["reason"] == "budget" and len(first["rounds"]) == 1
+    tune(resume_config(tmp_path / "b", ["loop.rounds=2"]), tmp_path / "b")
     assert [r["n_trials"] for r in loop["rounds"]] == [3, 3]
     assert loop["stopped"]["reason"] == "budget" and loop["observed"]["n_trials"] == 6
     assert loop["observed"]["hypervolume"] >= loop["rounds"][0]["hypervolume_observed"] >= 0.0

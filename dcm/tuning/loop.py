@@ -388,6 +388,13 @@ def run_loop(run: LoopRun, observations: Path | None = None, say: Any = print) -
         state["rounds"].append(entry)
         write_round_folder(run, entry)
         save_state(run, state)
+    elif _more_budget(run, state) and observations is None:  # resumed with a larger loop.rounds
+        save_config(run.cfg, run.out_dir)
+        state["stopped"] = None
+        entry = propose(run, state, len(state["rounds"]) + 1)
+        state["rounds"].append(entry)
+        write_round_folder(run, entry)
+        save_state(run, state)
     elif observations is not None:
         state = add_observations(run, state, Path(observations))  # refused: nothing written
         save_config(run.cfg, run.out_dir)  # a raised loop.rounds is the run's budget from now on
@@ -437,6 +444,12 @@ def resume_config(run_dir: str | Path, overrides: list[str] = ()) -> Any:
                                   f"{', '.join(RESUME_OVERRIDES)}); start a new run for other settings")
         changes.append(item.lstrip("+"))
     return OmegaConf.merge(cfg, OmegaConf.from_dotlist(changes)) if changes else cfg
+
+
+def _more_budget(run: LoopRun, state: dict[str, Any]) -> bool:
+    """Whether a loop stopped by its budget may run another round under this invocation's ``loop.rounds``."""
+    stopped = state.get("stopped") or {}
+    return stopped.get("reason") == "budget" and len(state["rounds"]) < int(run.loop.rounds)
 
 
 def _fmt(value: float | None) -> str:
