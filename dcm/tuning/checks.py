@@ -62,6 +62,44 @@ def _check_search(cfg: Any, space: SearchSpace) -> None:
                 + (" (robot_based.n_trials=0 skips the robot-based search)" if key.startswith("robot_based") else ""))
 
 
+ROBOTS = ("sim", "files")
+
+
+def _check_loop(cfg: Any, space: SearchSpace) -> None:
+    """The robot loop's settings (conf/tune.yaml ``robot``, ``observations``, ``loop``)."""
+    from dcm.tuning.correction import CORRECTIONS
+    from dcm.tuning.schedule_files import check_bowl_in_base
+
+    robot = cfg.get("robot")
+    if robot is not None and robot not in ROBOTS:
+        raise TuneConfigError(f"robot = {robot!r}; expected null (validate once in the simulator), sim (the simulator "
+                              "plays the robot, round after round) or files (write each round for a real robot)")
+    if cfg.get("observations") and not cfg.get("resume"):
+        raise TuneConfigError(f"observations = {cfg.observations} needs resume=<the run directory that proposed the "
+                              "schedules>")
+    loop = cfg.get("loop")
+    if loop is None:
+        return
+    _integer(loop.rounds, "loop.rounds", 1)
+    _integer(loop.batch, "loop.batch", 1)
+    n_trials = _integer(loop.n_trials, "loop.n_trials", 0, " (0: re-rank the robot-free search's trials only)")
+    startup = (to_container(cfg.search.options) or {}).get("n_startup_trials")
+    if n_trials and isinstance(startup, int) and n_trials <= startup:
+        raise TuneConfigError(f"loop.n_trials = {n_trials} is not above search.options.n_startup_trials = {startup}: "
+                              "every trial of a round's search would be random; raise it, or 0 to skip the search")
+    if _number(loop.tolerance_N, "loop.tolerance_N") < 0:
+        raise TuneConfigError(f"loop.tolerance_N = {loop.tolerance_N} must be >= 0 N")
+    if loop.correction not in CORRECTIONS:
+        raise TuneConfigError(f"loop.correction = {loop.correction!r}; expected one of {', '.join(CORRECTIONS)}")
+    for key in ("lengthscale", "noise_ratio", "ridge_alpha"):
+        if _number(loop[key], f"loop.{key}") <= 0:
+            raise TuneConfigError(f"loop.{key} = {loop[key]} must be > 0")
+    try:
+        check_bowl_in_base(to_container(loop.get("bowl_in_base")))
+    except ValueError as err:
+        raise TuneConfigError(str(err)) from None
+
+
 def min_compliance_loss(space: SearchSpace) -> float:
     """The lowest L_comp [kN/m] any schedule of ``space`` reaches: every translational axis at ``min_Npm``."""
     return math.sqrt(3.0) * space.min_Npm / 1000.0
@@ -139,6 +177,7 @@ def check_config(cfg: Any) -> CheckedConfig:
         raise TuneConfigError(f"overwrite = {cfg.overwrite!r} must be true or false")
     space = space_from_settings(cfg.stiffness, TuneConfigError)
     _check_search(cfg, space)
+    _check_loop(cfg, space)
     reference = _check_reference_point(cfg.get("reference_point"), space)
     domain = DomainSpec.resolve(to_container(cfg.domain))
     if cfg.demo_file:

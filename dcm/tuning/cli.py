@@ -24,11 +24,25 @@ def main(cfg: DictConfig) -> None:
     from dcm.tuning.run import tune
 
     try:
-        results = tune(cfg, Path(cfg.out_dir))
+        if cfg.get("resume"):  # continue a robot loop with its own settings
+            from hydra.core.hydra_config import HydraConfig
+
+            from dcm.tuning.loop import resume_config
+
+            run_cfg = resume_config(cfg.resume, list(HydraConfig.get().overrides.task))
+            results = tune(run_cfg, Path(cfg.resume), Path(cfg.observations) if cfg.get("observations") else None)
+        else:
+            if cfg.get("observations"):
+                raise ValueError(f"observations = {cfg.observations} needs resume=<the run directory that proposed "
+                                 "the schedules>")
+            results = tune(cfg, Path(cfg.out_dir))
     except (ValueError, OSError) as err:  # TuneConfigError, TrialLogMismatch, ModelInputError, DemoSpecError, ...
         line = f"error: {' '.join(str(err).split())}"
         to_run_log(line)  # the run directory's tune.log says why the run stopped
         raise SystemExit(line) from None
+    if "loop" in results:
+        _print_loop(results["loop"], Path(cfg.resume or cfg.out_dir))
+        return
     free, robot, ref = results["robot_free"], results["robot_based"], results["reference_point"]
     rule = ref.get("rule")
     how = "given" if rule is None else (
@@ -58,6 +72,16 @@ def main(cfg: DictConfig) -> None:
     print(f"results: {out / 'results.json'}")
     print("figures: " + ", ".join(str(out / name) for name in ("overview.png", "pareto.png", "solution_forces.png")
                                   if (out / name).is_file()))
+
+
+def _print_loop(loop: dict, out: Path) -> None:
+    """The loop's scores: one line per observed round, then what comes next (the loop printed its own line)."""
+    for r in loop["rounds"]:
+        if "n_trials" in r:
+            print(f"round {r['round']}: {r['n_trials']} trials, observed hypervolume so far "
+                  f"{r['hypervolume_observed']:.4g}, predicted -> observed mean |error| "
+                  f"{'n/a' if r['prediction_mae_N'] is None else format(r['prediction_mae_N'], '.3g')} N")
+    print(f"loop: {out / 'loop.json'}")
 
 
 if __name__ == "__main__":

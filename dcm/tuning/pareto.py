@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 from botorch.utils.multi_objective.box_decompositions.dominated import DominatedPartitioning
@@ -40,3 +42,22 @@ def reference_point(*objective_sets: np.ndarray, margin: float = 0.1) -> np.ndar
     stacked = np.concatenate([np.asarray(s, dtype=np.float64) for s in objective_sets if len(s)], axis=0)
     worst, best = stacked.max(axis=0), stacked.min(axis=0)
     return worst + margin * np.maximum(worst - best, 1e-9)
+
+
+def pick_spread(objectives: np.ndarray, count: int) -> np.ndarray:
+    """Indices of up to ``count`` Pareto-optimal rows spread evenly along the front (sorted by L_comp)."""
+    finite = np.flatnonzero(np.isfinite(objectives).all(axis=1))
+    front = finite[pareto_mask(objectives[finite])]
+    front = front[np.argsort(objectives[front, 1])]
+    if len(front) <= count:
+        return front
+    return front[np.unique(np.round(np.linspace(0, len(front) - 1, count)).astype(int))]
+
+
+def solution_record(phase_stiffness: np.ndarray, validated: np.ndarray, **measured: np.ndarray) -> dict[str, Any]:
+    """One solution as a ``results.json`` lists it: its per-phase stiffness, its other (L_task, L_comp) by name
+    (``predicted`` by a model, ``observed`` in a search's trial) and its validated ones."""
+    pair = lambda v: {"L_task_N": v[0], "L_comp_kNpm": v[1]}  # noqa: E731
+    return {"phase_stiffness_Npm": np.asarray(phase_stiffness).tolist(),
+            **{name: pair(value) for name, value in measured.items()},
+            "validated": {**pair(validated), "failed": bool(np.isnan(validated).any())}}

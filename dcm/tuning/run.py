@@ -52,7 +52,7 @@ from dcm.tuning.checks import (
 )
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
 from dcm.tuning.optimize import LoopTimes, TrialLog, TrialLogMismatch, optimize, resumable_log
-from dcm.tuning.pareto import hypervolume, pareto_mask
+from dcm.tuning.pareto import hypervolume, pick_spread, solution_record
 from dcm.tuning.report import plot_overview, plot_pareto, plot_solution_forces
 
 # The skill's hypervolume reference point (docs/tune.md#what-a-run-does): L_task of a rollout at the demo's own
@@ -66,31 +66,12 @@ ROBOT_LOG = "robot_based_trials.npz"
 PLOT_BATCH = 2**31  # the figure's prediction is seeded like a batch no run reaches
 
 
-def pick_spread(objectives: np.ndarray, count: int) -> np.ndarray:
-    """Indices of up to ``count`` Pareto-optimal rows spread evenly along the front (sorted by L_comp)."""
-    finite = np.flatnonzero(np.isfinite(objectives).all(axis=1))
-    front = finite[pareto_mask(objectives[finite])]
-    front = front[np.argsort(objectives[front, 1])]
-    if len(front) <= count:
-        return front
-    return front[np.unique(np.round(np.linspace(0, len(front) - 1, count)).astype(int))]
-
-
 def validate_front(objective: SimulatorObjective, params: np.ndarray, objectives: np.ndarray,
                    count: int) -> tuple[np.ndarray, np.ndarray]:
     """Re-run up to ``count`` picks spread along the front of observed ``objectives`` with ``objective`` (the
     validation's rollouts): the indices picked and their validated (L_task, L_comp)."""
     picks = pick_spread(objectives, count)
     return picks, objective(params[picks]) if len(picks) else np.zeros((0, 2))
-
-
-def solution_record(phase_stiffness: np.ndarray, validated: np.ndarray, **measured: np.ndarray) -> dict[str, Any]:
-    """One solution as a ``results.json`` lists it: its per-phase stiffness, its other (L_task, L_comp) by name
-    (``predicted`` by a model, ``observed`` in a search's trial) and its validated ones."""
-    pair = lambda v: {"L_task_N": v[0], "L_comp_kNpm": v[1]}  # noqa: E731
-    return {"phase_stiffness_Npm": np.asarray(phase_stiffness).tolist(),
-            **{name: pair(value) for name, value in measured.items()},
-            "validated": {**pair(validated), "failed": bool(np.isnan(validated).any())}}
 
 
 # ----------------------------------------------------------------------------------------------- predictor
@@ -275,8 +256,12 @@ def check_conditioning(model: Any, objective: ModelObjective, space: Any) -> dic
     return conditioning
 
 
-def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
-    """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds."""
+def tune(cfg: Any, out_dir: Path, observations: Path | None = None) -> dict[str, Any]:
+    """Run the whole comparison for the config of ``conf/tune.yaml``; returns what ``results.json`` holds.
+
+    With ``robot`` set (``sim`` or ``files``) the robot-free search is followed by the robot loop instead of the
+    one-shot validation (:mod:`dcm.tuning.loop`), ``observations`` being the trials of its pending round; returns
+    ``{"loop": <what loop.json holds>}``."""
     from dcm.cli import resolve_device
     from dcm.models.predict import describe
 
@@ -296,7 +281,8 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     free_path, robot_path = out_dir / FREE_LOG, out_dir / ROBOT_LOG
     # Refuse another run's logs now, not after recording the demo and running the trials.
     resumable_log(free_path, prints["robot_free"], overwrite, notes)
-    if cfg.robot_based.n_trials > 0:
+    looping = bool(cfg.get("robot"))
+    if cfg.robot_based.n_trials > 0 and not looping:
         resumable_log(robot_path, prints["robot_based"], overwrite)
 
     simulator, demo, skill = record_skill(cfg, checked)
@@ -326,6 +312,12 @@ def tune(cfg: Any, out_dir: Path) -> dict[str, Any]:
     free_log = search_loop(model_objective, cfg.robot_free.n_trials, cfg.robot_free.batch_size, free_path,
                            prints["robot_free"], "robot-free (model)", free_times, notes, free_search_options(cfg))
     free_params, free_predicted = free_log.arrays()
+    if looping:  # the robot validates and corrects, round after round
+        from dcm.tuning.loop import LoopRun, run_loop
+
+        run = LoopRun(cfg, out_dir, prints["robot_free"], simulator, demo, skill, space, model_objective,
+                      free_params, free_predicted, reference_info, free_search_options(cfg))
+        return {"loop": run_loop(run, observations)}
 
     n_validate, rollouts = cfg.robot_free.n_validate, cfg.validation_rollouts
     chosen = pick_spread(free_predicted, n_validate)
