@@ -59,8 +59,9 @@ FAMILY_PARAMS: dict[str, dict[str, Any]] = {
     # The curve of the same seed (same shape stream), wiped at a speed that changes: the demo's duration is cut
     # into `n_segments` equal-time segments (the approach lies in the first), each with its own speed [m/s]
     # drawn log-uniformly in `speed_mps`; the speed blends between segments over `blend_s` seconds and rises
-    # from and falls to rest the same way. Speed is along the arc, so the drawn value is the tool's speed.
-    "paced_curve": {"seed": 0, "harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.16], "n_segments": 3,
+    # from and falls to rest the same way. A segment's speed is its mean over a loop of the curve: as on a curve,
+    # the tool slows down in bends and speeds up on the straights.
+    "paced_curve": {"seed": 0, "harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.20], "n_segments": 3,
                     "blend_s": 0.8, "press_range_m": None},
     "waypoints": {},
 }
@@ -471,14 +472,14 @@ class DemoSpec:
         return speed * envelope
 
     def _paced_xy(self, t: np.ndarray) -> np.ndarray:
-        """(x, y) of a ``paced_curve`` at times ``t``: arc length from the speed profile, mapped onto the loop."""
+        """(x, y) of a ``paced_curve`` at times ``t``: the curve's phase advances at the speed profile over one loop's
+        length, so each segment's speed is its mean over a loop, and, like ``curve``, the tool slows down where the
+        curve bends sharply and speeds up where it runs straight."""
         unit_xy, scale, grid, arc = self._curve_loop()
         speed = self.speed_profile(t)
         dt = np.diff(t, prepend=t[0])
         length = np.cumsum(0.5 * (speed + np.roll(speed, 1)) * dt) if len(t) > 1 else np.zeros(1)
-        loops, rest = np.divmod(length, arc[-1])
-        phase = loops + np.interp(rest, arc, grid)
-        return unit_xy(phase) * scale * np.asarray(self.bowl.semi_axes_m)
+        return unit_xy(length / arc[-1]) * scale * np.asarray(self.bowl.semi_axes_m)
 
     def _curve_xy(self, u: np.ndarray, wipe_s: float) -> np.ndarray:
         """Progress ``u`` in [0, 1] -> (x, y) on the seeded curve, covering speed x wipe_s of arc length."""

@@ -265,12 +265,15 @@ class Simulator:
         return Demo(spec=spec, dt=self.dt, x_demo=run.x_obs, force_demo=run.force_obs, start_pose=start,
                     contact=run.contact)
 
-    def rollout(self, demo: Demo, stiffness: np.ndarray, repeat: int = 0) -> Trial:
+    def rollout(self, demo: Demo, stiffness: np.ndarray, repeat: int = 0, common_draws: bool = False) -> Trial:
         """Run the impedance controller with schedule ``stiffness`` (H, 6) on the attractor of ``demo``.
 
         A rollout's random draws (sensor noise, per-rollout bowl spread) are seeded by the simulator's seed and
         its inputs, so the same schedule gives the same trial; ``repeat`` > 0 draws another, independent one
-        (the same physics with other noise), as re-running a schedule on a real robot would.
+        (the same physics with other noise), as re-running a schedule on a real robot would. With
+        ``common_draws`` the draws leave the schedule out of their key: every schedule's ``repeat``-th rollout of a
+        demo meets the same bowl placement, friction and sensor draws (common random numbers), so an oracle that
+        compares schedules over a few rollouts compares them on the same disturbances.
 
         Raises ``StiffnessOutOfRange`` for values outside ``self.limits`` and ``SimulatorError`` for
         mismatched shapes or non-finite demo data; divergence gives a failed ``Trial`` instead.
@@ -297,7 +300,8 @@ class Simulator:
         emb = self.embodiment_for(demo.spec.bowl)
         # Keyed on what the caller chose (the demo's spec, the schedule), not on simulated floats: those differ in
         # their last bits between CPUs, and any hash of them would give every rollout another draw there.
-        rng = self._rng("rollout", demo.spec.to_json(), stiffness.tobytes(), *([repeat] if repeat else []))
+        key = b"common" if common_draws else stiffness.tobytes()
+        rng = self._rng("rollout", demo.spec.to_json(), key, *([repeat] if repeat else []))
         placement = self._bowl_draw(rng)
         bias = self._bias_draw(rng)
         with _bowl_replaced(emb, placement):

@@ -1,9 +1,11 @@
 """The oracle: every schedule of a set rolled out ``rollouts`` times on one skill, in the simulator.
 
 What is kept per (schedule, rollout) is enough for every certification statistic without re-running: the
-squared force error summed over the approach and over the whole trajectory, and the step counts, so L_task
-can be formed over the whole trajectory or from contact on. One skill's results are one ``.npz``, written
-atomically; a finished skill is skipped on a re-run, so a killed run resumes where it stopped.
+squared force error summed over the approach and over the whole trajectory, and the step counts, so L_task can
+be formed over the whole trajectory or from contact on. Rollout r of every schedule meets the same disturbance
+draws (``Simulator.rollout(common_draws=True)``), so schedules are compared on equal terms. One skill's
+results are one ``.npz``, written atomically; a finished skill is skipped on a re-run, so a killed run resumes
+where it stopped.
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ def run_skill(seed: int, out_dir: Path, rollouts: int = bench.ROLLOUTS, domain: 
         stiffness = schedule_from_phases(np.repeat(levels[:, None], 3, axis=1), boundaries)
         comp[i] = float(compliance_loss(stiffness))
         for r in range(rollouts):
-            trial = sim.rollout(demo, stiffness, repeat=first_repeat + r)
+            trial = sim.rollout(demo, stiffness, repeat=first_repeat + r, common_draws=True)
             if trial.failed:
                 failed[i, r] = True
                 continue

@@ -21,7 +21,7 @@ DURATION_S = 12.0
 APPROACH_S = 1.0
 N_PHASES = 3
 BOWL = {"shape": "spherical_cap", "rim_radius_m": 0.14, "depth_m": 0.04}
-FAMILY_PARAMS = {"harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.16], "n_segments": N_PHASES,
+FAMILY_PARAMS = {"harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.20], "n_segments": N_PHASES,
                  "blend_s": 0.8, "press_range_m": [0.005, 0.015]}
 DEMO_STIFFNESS_NPM = 800.0
 
