@@ -147,6 +147,32 @@ def fresh_pairs(skills: list[dict[str, Any]], out: Path, workers: int) -> dict[i
     return result
 
 
+def render(result: dict[str, Any]) -> str:
+    """The per-skill table and the T1-T4 summary of a ``certify`` result, as markdown."""
+    head = ("| skill seed | speeds per third [m/s], press [mm] | approach share | best schedule [N/m] | its L_task [N] "
+            "| best constant within its L_comp [N] | T2 gain (oracle) | T2 gain (fresh rollouts) | I_H oracle "
+            "| I_H prior | I_H rule | oracle over prior | oracle over rule | T4 regret of the single schedule "
+            "| failed rollouts |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in result["rows"]:
+        lines.append(
+            f"| {r['seed']} | {', '.join(f'{v:g}' for v in r['speeds_press'][:-1])}; {r['speeds_press'][-1]:g} "
+            f"| {r['approach_share']:.3f} | {r['best']} | {r['best_task']:.3f} | {r['constant_task']:.3f} "
+            f"| {r['gain']:+.3f} | {r.get('fresh_gain', float('nan')):+.3f} | {r['ih_oracle']:.4f} "
+            f"| {r['ih_prior']:.4f} | {r['ih_rule']:.4f} | {r['over_prior']:+.3f} | {r['over_rule']:+.3f} "
+            f"| {r['single_regret']:+.3f} | {r['failed']} |")
+    lines += ["", f"- prior (five constants): {', '.join(result['prior'])}",
+              f"- fixed rule (fitted on the train skills): {', '.join(result['rule']) or 'none'}",
+              f"- best single schedule over these skills: {result['single']}",
+              f"- T1 median approach share: {result['t1_median']:.3f}",
+              f"- T2 skills with gain >= 15 %: {result['t2_count']} of {len(result['rows'])} on fresh rollouts "
+              f"({result['t2_count_oracle']} on the oracle's own rollouts)",
+              f"- T3 median oracle I_H over the prior's: {result['t3_prior_median']:+.3f}; over the rule's: "
+              f"{result['t3_rule_median']:+.3f}",
+              f"- T4 median regret of the single schedule: {result['t4_median']:+.3f}"]
+    return "\n".join(lines) + "\n"
+
+
 FROM_CONTACT = False  # set by --from-contact; module level so worker processes need not know it
 
 
@@ -158,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rule-from", type=Path, help="a finished train oracle: fit the fixed rule there")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (1 or 2 on a shared machine)")
     parser.add_argument("--from-contact", action="store_true", help="L_task from the end of the approach on")
-    parser.add_argument("--report", type=Path, help="write the results as JSON next to this markdown path")
+    parser.add_argument("--report", type=Path, help="write <report>.json and <report>_tables.md next to this path")
     args = parser.parse_args(argv)
     if args.workers not in (1, 2):
         parser.error(f"--workers = {args.workers}: use 1 or 2 on this shared machine")
@@ -180,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.report:
         args.report.parent.mkdir(parents=True, exist_ok=True)
         args.report.with_suffix(".json").write_text(text + "\n")
+        args.report.with_name(args.report.stem + "_tables.md").write_text(render(result))
     return 0
 
 
