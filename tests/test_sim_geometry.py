@@ -66,7 +66,7 @@ def test_presets_load_and_round_trip() -> None:
     for f in files:
         bowl = BowlSpec.load(f)
         assert BowlSpec.from_dict(bowl.to_dict()) == bowl
-    for name in ("nominal", "realistic"):
+    for name in ("nominal", "realistic", "replaced_bowl"):
         dom = DomainSpec.load(f"conf/domain/{name}.yaml")
         assert dom == DomainSpec.preset(name)
         assert DomainSpec.from_dict(dom.to_dict()) == dom

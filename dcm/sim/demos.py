@@ -1,10 +1,11 @@
 """Demonstrations: small reproducible specs of a wiping path, and the recorded (pose, force) trajectories.
 
-A ``DemoSpec`` describes a path over a bowl (spiral, wavelike, line, a seeded random smooth curve, or a
-user's waypoint file) with a pressing depth. ``Simulator.record_demo`` executes it with a *demonstration
-controller* (fixed stiffness ``stiffness_Npm``; attractor = surface point pushed ``press`` below along the
-surface normal; a smooth approach from ``hover_m`` above the surface during the first ``approach_s``) and
-records the observed pose and contact wrench as a ``Demo``: ``x_demo (H, 6)`` and ``force_demo (H, 6)``.
+A ``DemoSpec`` describes a path over a bowl (spiral, wavelike, line, a seeded random smooth curve, the same
+curve wiped at a different drawn speed in each segment of the demo, or a user's waypoint file) with a pressing
+depth. ``Simulator.record_demo`` executes it with a *demonstration controller* (fixed stiffness
+``stiffness_Npm``; attractor = surface point pushed ``press`` below along the surface normal; a smooth
+approach from ``hover_m`` above the surface during the first ``approach_s``) and records the observed pose and
+contact wrench as a ``Demo``: ``x_demo (H, 6)`` and ``force_demo (H, 6)``.
 
 Timing: at the simulator's control rate, ``H = round(duration_s * control_hz)`` steps, sample ``k`` at
 ``t = k dt``. Waypoint files define their own duration: ``H = floor((t_last - t_first) * control_hz) + 1``.
@@ -32,7 +33,7 @@ import numpy as np
 
 from dcm.sim.geometry import BowlSpec, BowlSpecError
 
-FAMILIES = ("spiral", "wavelike", "line", "curve", "waypoints")
+FAMILIES = ("spiral", "wavelike", "line", "curve", "paced_curve", "waypoints")
 WAYPOINT_HEADER = ("t", "x", "y", "press")
 MIN_WAYPOINT_ROWS = 2
 PRESS_RANGE_M = (-0.05, 0.05)
@@ -55,6 +56,13 @@ FAMILY_PARAMS: dict[str, dict[str, Any]] = {
     # stroke, more loops around. Mean speed [m/s] is drawn in `speed_mps`; the press depth [m] is drawn in
     # `press_range_m`, or is the spec's press_m when that is null.
     "curve": {"seed": 0, "harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.10], "press_range_m": None},
+    # The curve of the same seed (same shape stream), wiped at a speed that changes: the demo's duration is cut
+    # into `n_segments` equal-time segments (the approach lies in the first), each with its own speed [m/s]
+    # drawn log-uniformly in `speed_mps`; the speed blends between segments over `blend_s` seconds and rises
+    # from and falls to rest the same way. A segment's speed is its mean over a loop of the curve: as on a curve,
+    # the tool slows down in bends and speeds up on the straights.
+    "paced_curve": {"seed": 0, "harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.20], "n_segments": 3,
+                    "blend_s": 0.8, "press_range_m": None},
     "waypoints": {},
 }
 # Allowed values of the curve parameters (inclusive).
@@ -63,6 +71,8 @@ CURVE_HARMONICS = (1, 8)
 CURVE_EXTENT = (0.05, 0.95)
 CURVE_SPEED_MPS = (0.005, 0.3)
 CURVE_GRID = 4096  # samples per loop for scaling and arc length
+PACED_SEGMENTS = (1, 8)
+PACED_BLEND_S = (0.05, 5.0)
 
 
 class DemoSpecError(ValueError):
@@ -232,7 +242,7 @@ class DemoSpec:
                                 f"known: {sorted(FAMILY_PARAMS[self.family])}")
         if self.family == "spiral" and self.params.get("direction", "ccw") not in ("cw", "ccw"):
             raise DemoSpecError(f"{where}: spiral direction = {self.params['direction']!r}; expected 'cw' or 'ccw'")
-        if self.family == "curve":
+        if self.family in ("curve", "paced_curve"):
             self._check_curve_params()
         checks = {
             **({} if self.family == "waypoints" else {"press_m": (self.press_m, *PRESS_RANGE_M)}),
@@ -344,6 +354,13 @@ class DemoSpec:
         value_range("speed_mps", *CURVE_SPEED_MPS, "m/s")
         if self._param("press_range_m") is not None:
             value_range("press_range_m", *PRESS_RANGE_M, "m")
+        if self.family == "paced_curve":
+            integer("n_segments", *PACED_SEGMENTS)
+            blend = self._param("blend_s")
+            if isinstance(blend, bool) or not isinstance(blend, (int, float)) or not (
+                    PACED_BLEND_S[0] <= blend <= PACED_BLEND_S[1]):
+                raise DemoSpecError(f"{where}: paced_curve params.blend_s = {blend!r} must be a number in "
+                                    f"{list(PACED_BLEND_S)} s")
 
     # -- the path --------------------------------------------------------------------------------
     def _param(self, key: str) -> Any:
@@ -385,7 +402,10 @@ class DemoSpec:
             wipe_s = max(self.duration_s - self.approach_s - dt, dt)
             u = _smooth_progress((t - self.approach_s) / wipe_s)
             xy = self._design_xy(u, rim, wipe_s)
-            press = np.full(horizon, self.curve_draws()["press_m"] if self.family == "curve" else float(self.press_m))
+            if self.family == "paced_curve":
+                xy = self._paced_xy(t)
+            drawn = self.family in ("curve", "paced_curve")
+            press = np.full(horizon, self.curve_draws()["press_m"] if drawn else float(self.press_m))
         if self.approach_s > 0:
             ramp = _smoothstep(t / self.approach_s)
             press = -self.hover_m + (press + self.hover_m) * ramp
@@ -404,16 +424,62 @@ class DemoSpec:
 
         Shape, speed and press come from independent streams of ``seed``, so changing one range keeps the
         other draws."""
-        if self.family != "curve":
-            raise DemoSpecError(f"{self.source}: curve_draws() needs family 'curve', not {self.family!r}")
+        if self.family not in ("curve", "paced_curve"):
+            raise DemoSpecError(f"{self.source}: curve_draws() needs family 'curve' or 'paced_curve', "
+                                f"not {self.family!r}")
         shape_rng, speed_rng, press_rng = (np.random.default_rng(s) for s in
                                            np.random.SeedSequence(int(self._param("seed"))).spawn(3))
         k = np.arange(1, int(self._param("harmonics")) + 1, dtype=np.float64)
         coeffs = shape_rng.standard_normal((len(k), 4)) / k[:, None]  # 1/k: low frequencies dominate, smooth
-        speed = float(speed_rng.uniform(*self._param("speed_mps")))
+        if self.family == "paced_curve":  # one speed per segment, log-uniform: slow and fast strokes alike
+            low, high = np.log(self._param("speed_mps"))
+            speed = np.exp(speed_rng.uniform(low, high, int(self._param("n_segments"))))
+        else:
+            speed = float(speed_rng.uniform(*self._param("speed_mps")))
         press_range = self._param("press_range_m")
         press = float(self.press_m) if press_range is None else float(press_rng.uniform(*press_range))
         return {"coeffs": coeffs, "speed_mps": speed, "press_m": press}
+
+    def _curve_loop(self) -> tuple[Any, float, np.ndarray, np.ndarray]:
+        """The seeded closed curve: a function of phase (loops) -> unscaled (N, 2), its scale to the bowl, and
+        the arc length [m] of one scaled loop at the grid's phases."""
+        coeffs = self.curve_draws()["coeffs"]
+        k = np.arange(1, len(coeffs) + 1, dtype=np.float64)
+        semi_axes = np.asarray(self.bowl.semi_axes_m)
+
+        def unit_xy(phase: np.ndarray) -> np.ndarray:
+            angle = 2.0 * np.pi * np.outer(phase, k)
+            cos, sin = np.cos(angle), np.sin(angle)
+            return np.stack([cos @ coeffs[:, 0] + sin @ coeffs[:, 1], cos @ coeffs[:, 2] + sin @ coeffs[:, 3]], axis=1)
+
+        grid = np.arange(CURVE_GRID + 1) / CURVE_GRID
+        loop = unit_xy(grid)
+        scale = float(self._param("extent")) / float(np.max(np.linalg.norm(loop, axis=1)))
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(loop * scale * semi_axes, axis=0), axis=1))])
+        return unit_xy, scale, grid, arc
+
+    def speed_profile(self, t: np.ndarray) -> np.ndarray:
+        """A ``paced_curve``'s designed tool speed [m/s] at times ``t`` [s]: 0 until the approach ends, then each
+        segment's drawn speed, blended over ``blend_s`` at segment edges and at the start and end of the wipe."""
+        speeds = np.asarray(self.curve_draws()["speed_mps"], dtype=np.float64)
+        blend = float(self._param("blend_s"))
+        duration, start = float(self.duration_s), float(self.approach_s)
+        edges = duration * np.arange(1, len(speeds)) / len(speeds)
+        speed = np.full(np.shape(t), speeds[0])
+        for edge, before, after in zip(edges, speeds[:-1], speeds[1:]):
+            speed = speed + (after - before) * _smoothstep((t - edge + blend / 2) / blend)
+        envelope = _smoothstep((t - start) / blend) * _smoothstep((duration - t) / blend)
+        return speed * envelope
+
+    def _paced_xy(self, t: np.ndarray) -> np.ndarray:
+        """(x, y) of a ``paced_curve`` at times ``t``: the curve's phase advances at the speed profile over one loop's
+        length, so each segment's speed is its mean over a loop, and, like ``curve``, the tool slows down where the
+        curve bends sharply and speeds up where it runs straight."""
+        unit_xy, scale, grid, arc = self._curve_loop()
+        speed = self.speed_profile(t)
+        dt = np.diff(t, prepend=t[0])
+        length = np.cumsum(0.5 * (speed + np.roll(speed, 1)) * dt) if len(t) > 1 else np.zeros(1)
+        return unit_xy(length / arc[-1]) * scale * np.asarray(self.bowl.semi_axes_m)
 
     def _curve_xy(self, u: np.ndarray, wipe_s: float) -> np.ndarray:
         """Progress ``u`` in [0, 1] -> (x, y) on the seeded curve, covering speed x wipe_s of arc length."""
@@ -438,6 +504,8 @@ class DemoSpec:
         return unit_xy(end_phase * u) * scale * semi_axes
 
     def _design_xy(self, u: np.ndarray, rim: float, wipe_s: float) -> np.ndarray:
+        if self.family == "paced_curve":  # timed by its speed profile in ``path``, not by progress
+            return np.zeros((len(u), 2))
         if self.family == "curve":
             return self._curve_xy(u, wipe_s)
         if self.family == "spiral":

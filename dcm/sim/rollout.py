@@ -7,11 +7,11 @@ divergence detection and the objectives ``L_task`` [N] and ``L_comp`` [kN/m].
 Timing: step ``k`` applies command ``k`` for one control period (several physics substeps) and records the
 state at its end; a demo of ``duration_s`` has ``H = duration_s * control_hz`` steps.
 
-Determinism: sensor noise and the bowl's offset and friction (``DomainSpec.bowl_offset_std_m``,
-``bowl_friction_std``) are drawn from a generator seeded by the simulator seed and a hash of the inputs (the
-demo's spec and the stiffness schedule), so the same inputs give identical arrays, whatever ran before;
-another simulator seed gives another draw. The hash leaves out the simulated demo arrays: their last bits
-differ between CPUs, and the draws must not.
+Determinism: sensor noise and bias and the bowl's placement and friction (``DomainSpec.bowl_offset_std_m``,
+``bowl_shift_xy_std_m``, ``bowl_tilt_std_deg``, ``bowl_friction_std``, ``ft_bias_std``) are drawn from a
+generator seeded by the simulator seed and a hash of the inputs (the demo's spec and the stiffness schedule),
+so the same inputs give identical arrays, whatever ran before; another simulator seed gives another draw. The
+hash leaves out the simulated demo arrays: their last bits differ between CPUs, and the draws must not.
 """
 
 from __future__ import annotations
@@ -100,6 +100,9 @@ class Trial:
     failed_step: int = -1
     bowl_offset_m: float = 0.0  # how far the bowl stood above where the demo had it (domain.bowl_offset_std_m)
     bowl_friction_factor: float = 1.0  # the bowl's friction in this rollout ÷ the nominal (domain.bowl_friction_std)
+    bowl_shift_xy_m: tuple[float, float] = (0.0, 0.0)  # the bowl's horizontal re-placement (domain.bowl_shift_xy_std_m)
+    bowl_tilt_deg: tuple[float, float] = (0.0, 0.0)  # its tilt about bowl x, y (domain.bowl_tilt_std_deg)
+    ft_bias_draw: tuple[float, ...] = (0.0,) * 6  # this rollout's sensor bias beyond ft_bias (domain.ft_bias_std)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -129,25 +132,51 @@ class DivergenceBounds:
     max_below_surface_m: float = 0.04  # the tool tunnelled into the bowl
 
 
+@dataclass(frozen=True)
+class BowlPlacement:
+    """Where one rollout finds the bowl relative to where the demo had it, and its friction.
+
+    ``offset_m`` raises it, ``shift_xy_m`` moves it horizontally, ``tilt_deg`` rotates it about the bowl frame's
+    x then y axis through its lowest point; ``friction_factor`` scales its sliding friction."""
+
+    offset_m: float = 0.0
+    friction_factor: float = 1.0
+    shift_xy_m: tuple[float, float] = (0.0, 0.0)
+    tilt_deg: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def is_nominal(self) -> bool:
+        return (not self.offset_m and self.friction_factor == 1.0 and not any(self.shift_xy_m)
+                and not any(self.tilt_deg))
+
+
 @contextmanager
-def _bowl_replaced(emb: Embodiment, offset_m: float, friction_factor: float) -> Iterator[None]:
-    """Raise the bowl geom by ``offset_m`` and scale its sliding friction by ``friction_factor`` for one
-    rollout. Poses and divergence checks stay in the nominal bowl frame, as the controller believes it to be;
-    the bowl's contact priority makes its friction the contact's."""
-    if not offset_m and friction_factor == 1.0:
+def _bowl_replaced(emb: Embodiment, placement: BowlPlacement) -> Iterator[None]:
+    """Move the bowl geom by ``placement`` and scale its sliding friction for one rollout. Poses and
+    divergence checks stay in the nominal bowl frame, as the controller believes it to be; the bowl's contact
+    priority makes its friction the contact's."""
+    if placement.is_nominal:
         yield
         return
     model = emb.model
     geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, BOWL_GEOM)
-    nominal_z, sameframe = float(model.geom_pos[geom, 2]), int(model.geom_sameframe[geom])
+    nominal_pos, nominal_quat = model.geom_pos[geom].copy(), model.geom_quat[geom].copy()
+    sameframe = int(model.geom_sameframe[geom])
     nominal_friction = float(model.geom_friction[geom, 0])
     model.geom_sameframe[geom] = 0  # a geom compiled at its body's frame ignores geom_pos otherwise
-    model.geom_pos[geom, 2] = nominal_z + offset_m
-    model.geom_friction[geom, 0] = nominal_friction * friction_factor
+    model.geom_pos[geom] = nominal_pos + np.array([*placement.shift_xy_m, placement.offset_m])
+    if any(placement.tilt_deg):
+        quat_x, quat_y, tilt = np.zeros(4), np.zeros(4), np.zeros(4)
+        mujoco.mju_axisAngle2Quat(quat_x, np.array([1.0, 0.0, 0.0]), math.radians(placement.tilt_deg[0]))
+        mujoco.mju_axisAngle2Quat(quat_y, np.array([0.0, 1.0, 0.0]), math.radians(placement.tilt_deg[1]))
+        mujoco.mju_mulQuat(tilt, quat_y, quat_x)
+        mujoco.mju_mulQuat(model.geom_quat[geom], tilt, nominal_quat)
+    model.geom_friction[geom, 0] = nominal_friction * placement.friction_factor
     try:
         yield
     finally:
-        model.geom_pos[geom, 2] = nominal_z
+        model.geom_pos[geom] = nominal_pos
+        model.geom_quat[geom] = nominal_quat
         model.geom_sameframe[geom] = sameframe
         model.geom_friction[geom, 0] = nominal_friction
 
@@ -228,18 +257,23 @@ class Simulator:
                                             inertia=self.apparent_mass, mass=self.damping_mass)
         start = spec.start_pose(self.control_hz)
         emb = self.embodiment_for(spec.bowl)
-        run = self._execute(emb, spec.bowl, start, attractor, stiffness, self._rng("demo", spec.to_json()))
+        rng = self._rng("demo", spec.to_json())
+        # The demonstration's sensor had a bias of its own (the demo bowl stands where the demo says it does).
+        run = self._execute(emb, spec.bowl, start, attractor, stiffness, rng, self._bias_draw(rng))
         if run.failed:
             raise SimulatorError(f"recording demo {spec.name or spec.family!r} diverged: {run.reason}")
         return Demo(spec=spec, dt=self.dt, x_demo=run.x_obs, force_demo=run.force_obs, start_pose=start,
                     contact=run.contact)
 
-    def rollout(self, demo: Demo, stiffness: np.ndarray, repeat: int = 0) -> Trial:
+    def rollout(self, demo: Demo, stiffness: np.ndarray, repeat: int = 0, common_draws: bool = False) -> Trial:
         """Run the impedance controller with schedule ``stiffness`` (H, 6) on the attractor of ``demo``.
 
         A rollout's random draws (sensor noise, per-rollout bowl spread) are seeded by the simulator's seed and
         its inputs, so the same schedule gives the same trial; ``repeat`` > 0 draws another, independent one
-        (the same physics with other noise), as re-running a schedule on a real robot would.
+        (the same physics with other noise), as re-running a schedule on a real robot would. With
+        ``common_draws`` the draws leave the schedule out of their key: every schedule's ``repeat``-th rollout of a
+        demo meets the same bowl placement, friction and sensor draws (common random numbers), so an oracle that
+        compares schedules over a few rollouts compares them on the same disturbances.
 
         Raises ``StiffnessOutOfRange`` for values outside ``self.limits`` and ``SimulatorError`` for
         mismatched shapes or non-finite demo data; divergence gives a failed ``Trial`` instead.
@@ -266,10 +300,12 @@ class Simulator:
         emb = self.embodiment_for(demo.spec.bowl)
         # Keyed on what the caller chose (the demo's spec, the schedule), not on simulated floats: those differ in
         # their last bits between CPUs, and any hash of them would give every rollout another draw there.
-        rng = self._rng("rollout", demo.spec.to_json(), stiffness.tobytes(), *([repeat] if repeat else []))
-        offset, friction_factor = self._bowl_draw(rng)
-        with _bowl_replaced(emb, offset, friction_factor):
-            run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng)
+        key = b"common" if common_draws else stiffness.tobytes()
+        rng = self._rng("rollout", demo.spec.to_json(), key, *([repeat] if repeat else []))
+        placement = self._bowl_draw(rng)
+        bias = self._bias_draw(rng)
+        with _bowl_replaced(emb, placement):
+            run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng, bias)
         if run.failed:
             l_task = float("inf")
         else:
@@ -288,17 +324,29 @@ class Simulator:
             failure_reason=run.reason,
             stiffness_applied=applied,
             failed_step=run.failed_step,
-            bowl_offset_m=offset,
-            bowl_friction_factor=friction_factor,
+            bowl_offset_m=placement.offset_m,
+            bowl_friction_factor=placement.friction_factor,
+            bowl_shift_xy_m=placement.shift_xy_m,
+            bowl_tilt_deg=placement.tilt_deg,
+            ft_bias_draw=tuple(float(v) for v in bias) if bias is not None else (0.0,) * 6,
         )
 
-    def _bowl_draw(self, rng: np.random.Generator) -> tuple[float, float]:
-        """This rollout's bowl offset [m] and friction factor. Each is drawn only when its spread is set, so a
-        domain without spreads draws the same sensor noise as if these did not exist."""
-        offset_std, friction_std = self.domain.bowl_offset_std_m, self.domain.bowl_friction_std
+    def _bowl_draw(self, rng: np.random.Generator) -> BowlPlacement:
+        """This rollout's bowl placement and friction factor. Each is drawn only when its spread is set, and the
+        newer spreads after the older ones, so a domain without them draws what it drew before they existed."""
+        domain = self.domain
+        offset_std, friction_std = domain.bowl_offset_std_m, domain.bowl_friction_std
         offset = float(rng.normal(0.0, offset_std)) if offset_std else 0.0
         factor = float(np.exp(rng.normal(0.0, friction_std) - friction_std**2 / 2)) if friction_std else 1.0
-        return offset, factor
+        shift_std, tilt_std = domain.bowl_shift_xy_std_m, domain.bowl_tilt_std_deg
+        shift = tuple(float(v) for v in rng.normal(0.0, shift_std, 2)) if shift_std else (0.0, 0.0)
+        tilt = tuple(float(v) for v in rng.normal(0.0, tilt_std, 2)) if tilt_std else (0.0, 0.0)
+        return BowlPlacement(offset, factor, shift, tilt)  # type: ignore[arg-type]
+
+    def _bias_draw(self, rng: np.random.Generator) -> np.ndarray | None:
+        """This rollout's sensor bias beyond ``ft_bias`` (drawn only when ``ft_bias_std`` is set)."""
+        std = np.asarray(self.domain.ft_bias_std)
+        return rng.standard_normal(6) * std if std.any() else None
 
     def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
         """The attractor (H, 6) a rollout of the commanded ``stiffness`` (H, 6) uses: the paper's equation with
@@ -340,6 +388,7 @@ class Simulator:
         attractor: np.ndarray,
         stiffness: np.ndarray,
         rng: np.random.Generator,
+        bias: np.ndarray | None = None,
     ) -> _Execution:
         """Reset at ``start_pose`` and run the commands; applies latency and sensing; detects divergence."""
         horizon = len(attractor)
@@ -379,8 +428,8 @@ class Simulator:
                         arr[~np.isfinite(arr)] = 0.0
                 contact[k:] = False
                 break
-        force_obs = self.domain.sense(f_contact, self.dt, rng)
-        force_sensor = self.domain.sense(f_sensor, self.dt, rng)
+        force_obs = self.domain.sense(f_contact, self.dt, rng, bias)
+        force_sensor = self.domain.sense(f_sensor, self.dt, rng, bias)
         return _Execution(x_obs, v_obs, force_obs, force_sensor, contact, failed, reason, failed_step)
 
     @staticmethod
