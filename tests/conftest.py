@@ -11,6 +11,17 @@ import yaml
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering backend; must precede any robosuite import
 
 
+@pytest.fixture(autouse=True)
+def _torch_threads_restored():
+    """A test that runs tune(torch_threads=...) in-process changes torch's thread count for the whole process;
+    restore it, so no test's numbers depend on which tests ran before it."""
+    import torch
+
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="session")
 def tiny_dataset_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A ``tiny`` dataset (tool embodiment, 5 demos x 3 trials, H = 40) in a session temp dir."""
