@@ -483,25 +483,12 @@ class DemoSpec:
 
     def _curve_xy(self, u: np.ndarray, wipe_s: float) -> np.ndarray:
         """Progress ``u`` in [0, 1] -> (x, y) on the seeded curve, covering speed x wipe_s of arc length."""
-        draws = self.curve_draws()
-        coeffs = draws["coeffs"]
-        k = np.arange(1, len(coeffs) + 1, dtype=np.float64)
-        semi_axes = np.asarray(self.bowl.semi_axes_m)
-
-        def unit_xy(phase: np.ndarray) -> np.ndarray:  # phase in loops; (N, 2) before scaling
-            angle = 2.0 * np.pi * np.outer(phase, k)
-            cos, sin = np.cos(angle), np.sin(angle)
-            return np.stack([cos @ coeffs[:, 0] + sin @ coeffs[:, 1], cos @ coeffs[:, 2] + sin @ coeffs[:, 3]], axis=1)
-
-        grid = np.arange(CURVE_GRID + 1) / CURVE_GRID
-        loop = unit_xy(grid)
-        scale = float(self._param("extent")) / float(np.max(np.linalg.norm(loop, axis=1)))
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(loop * scale * semi_axes, axis=0), axis=1))])
-        length = draws["speed_mps"] * wipe_s
+        unit_xy, scale, grid, arc = self._curve_loop()
+        length = self.curve_draws()["speed_mps"] * wipe_s
         loops, rest = divmod(length, arc[-1])
         end_phase = loops + float(np.interp(rest, arc, grid))
         # Uniform in phase (not arc length): the tool slows down where the curve bends sharply, like a hand.
-        return unit_xy(end_phase * u) * scale * semi_axes
+        return unit_xy(end_phase * u) * scale * np.asarray(self.bowl.semi_axes_m)
 
     def _design_xy(self, u: np.ndarray, rim: float, wipe_s: float) -> np.ndarray:
         if self.family == "paced_curve":  # timed by its speed profile in ``path``, not by progress
