@@ -84,3 +84,23 @@ def test_paced_curve_runs_each_segment_at_its_drawn_speed():
     same_shape = DemoSpec(family="curve", params={"seed": 2}, bowl=CAP).curve_draws()["coeffs"]
     np.testing.assert_array_equal(spec.curve_draws()["coeffs"], same_shape)
     assert DemoSpec.from_dict(spec.to_dict()) == spec
+
+
+def test_paced_curve_fast_segment_is_off_by_default_and_one_drawn_segment_when_set():
+    """Unset, the draws are those of a spec without the option; set, exactly one segment per skill is in the fast
+    range, the others in the slow one, and which segment it is differs between seeds. A bad range is refused."""
+    plain = DemoSpec(family="paced_curve", params={"seed": 5}, bowl=CAP)
+    off = DemoSpec(family="paced_curve", params={"seed": 5, "fast_speed_mps": None}, bowl=CAP)
+    np.testing.assert_array_equal(plain.curve_draws()["speed_mps"], off.curve_draws()["speed_mps"])
+    assert "fast_speed_mps" not in plain.to_dict()["params"]
+    where = set()
+    for seed in range(12):
+        params = {"seed": seed, "speed_mps": [0.02, 0.05], "fast_speed_mps": [0.10, 0.20]}
+        speeds = DemoSpec(family="paced_curve", params=params, bowl=CAP).curve_draws()["speed_mps"]
+        fast = speeds >= 0.10
+        slow = speeds[~fast]
+        assert fast.sum() == 1 and speeds[fast][0] <= 0.20 and np.all((slow >= 0.02) & (slow <= 0.05))
+        where.add(int(np.argmax(fast)))
+    assert where == {0, 1, 2}
+    with pytest.raises(ValueError, match="fast_speed_mps"):
+        DemoSpec(family="paced_curve", params={"seed": 5, "fast_speed_mps": [0.2, 0.1]}, bowl=CAP)

@@ -60,9 +60,11 @@ FAMILY_PARAMS: dict[str, dict[str, Any]] = {
     # into `n_segments` equal-time segments (the approach lies in the first), each with its own speed [m/s]
     # drawn log-uniformly in `speed_mps`; the speed blends between segments over `blend_s` seconds and rises
     # from and falls to rest the same way. A segment's speed is its mean over a loop of the curve: as on a curve,
-    # the tool slows down in bends and speeds up on the straights.
+    # the tool slows down in bends and speeds up on the straights. With `fast_speed_mps` set (null = off), one
+    # segment, drawn uniformly per skill, gets its speed log-uniformly in that range instead: every skill then has
+    # a fast stroke and slow ones, at a place that differs between skills.
     "paced_curve": {"seed": 0, "harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.20], "n_segments": 3,
-                    "blend_s": 0.8, "press_range_m": None},
+                    "blend_s": 0.8, "press_range_m": None, "fast_speed_mps": None},
     "waypoints": {},
 }
 # Allowed values of the curve parameters (inclusive).
@@ -354,6 +356,8 @@ class DemoSpec:
         value_range("speed_mps", *CURVE_SPEED_MPS, "m/s")
         if self._param("press_range_m") is not None:
             value_range("press_range_m", *PRESS_RANGE_M, "m")
+        if self.family == "paced_curve" and self._param("fast_speed_mps") is not None:
+            value_range("fast_speed_mps", *CURVE_SPEED_MPS, "m/s")
         if self.family == "paced_curve":
             integer("n_segments", *PACED_SEGMENTS)
             blend = self._param("blend_s")
@@ -434,6 +438,10 @@ class DemoSpec:
         if self.family == "paced_curve":  # one speed per segment, log-uniform: slow and fast strokes alike
             low, high = np.log(self._param("speed_mps"))
             speed = np.exp(speed_rng.uniform(low, high, int(self._param("n_segments"))))
+            fast_range = self._param("fast_speed_mps")
+            if fast_range is not None:  # drawn after the slow speeds, so the option leaves their stream as it was
+                fast_low, fast_high = np.log(fast_range)
+                speed[int(speed_rng.integers(len(speed)))] = np.exp(speed_rng.uniform(fast_low, fast_high))
         else:
             speed = float(speed_rng.uniform(*self._param("speed_mps")))
         press_range = self._param("press_range_m")

@@ -32,12 +32,13 @@ TASK_FACTOR = 1.5  # the reference point's L_task: this x the demo stiffness's e
 
 def _run(args: tuple[int, str]) -> str:
     seed, out = args
-    return str(run_skill(seed, Path(out)))
+    return str(run_skill(seed, Path(out), revision=REVISION))
 
 
 def _run_fresh(args: tuple[int, str, list[list[float]]]) -> str:
     seed, out, schedules = args
-    return str(run_skill(seed, Path(out), schedules=np.asarray(schedules), first_repeat=bench.ROLLOUTS, tag="fresh"))
+    return str(run_skill(seed, Path(out), schedules=np.asarray(schedules), first_repeat=bench.ROLLOUTS, tag="fresh",
+                         revision=REVISION))
 
 
 def run_oracle(seeds: list[int], out: Path, workers: int) -> None:
@@ -174,21 +175,25 @@ def render(result: dict[str, Any]) -> str:
 
 
 FROM_CONTACT = False  # set by --from-contact; module level so worker processes need not know it
+REVISION = bench.REVISION  # set by --revision, the same way
 
 
 def main(argv: list[str] | None = None) -> int:
-    global FROM_CONTACT
+    global FROM_CONTACT, REVISION
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--split", choices=("train", "valid"), required=True)
     parser.add_argument("--out", type=Path, required=True, help="where the oracle's per-skill results go")
     parser.add_argument("--rule-from", type=Path, help="a finished train oracle: fit the fixed rule there")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (1 or 2 on a shared machine)")
     parser.add_argument("--from-contact", action="store_true", help="L_task from the end of the approach on")
+    parser.add_argument("--revision", choices=sorted(bench.REVISIONS), default=bench.REVISION,
+                        help="the task revision to certify (studies/benchmark/task.py REVISIONS)")
     parser.add_argument("--report", type=Path, help="write <report>.json and <report>_tables.md next to this path")
     args = parser.parse_args(argv)
     if args.workers not in (1, 2):
         parser.error(f"--workers = {args.workers}: use 1 or 2 on this shared machine")
     FROM_CONTACT = args.from_contact
+    REVISION = args.revision
     seeds = list(bench.TRAIN_SEEDS if args.split == "train" else bench.VALID_SEEDS)
     run_oracle(seeds, args.out, args.workers)
     skills = [load_skill(args.out, s, args.from_contact) for s in seeds]
@@ -201,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     result = certify(skills, rule, fresh)
     result["from_contact"] = args.from_contact
     result["split"] = args.split
+    result["revision"] = args.revision
     text = json.dumps(result, indent=1, default=float)
     print(text)
     if args.report:

@@ -29,19 +29,21 @@ def skill_path(out_dir: Path, seed: int) -> Path:
 
 def run_skill(seed: int, out_dir: Path, rollouts: int = bench.ROLLOUTS, domain: Any = bench.DOMAIN,
               spec_override: dict[str, Any] | None = None, schedules: np.ndarray | None = None,
-              first_repeat: int = 0, tag: str = "", embodiment: str = bench.EMBODIMENT) -> Path:
+              first_repeat: int = 0, tag: str = "", embodiment: str = bench.EMBODIMENT,
+              revision: str = bench.REVISION) -> Path:
     """Roll out every oracle schedule ``rollouts`` times on the skill of ``seed``; returns the ``.npz`` path.
 
     ``domain`` is a preset name or DomainSpec mapping; ``spec_override`` replaces fields of the skill's spec
     (the known-answer checks use it: a flat plate, no disturbance); ``first_repeat`` > 0 draws fresh rollouts
-    (``Simulator.rollout(repeat=...)``) that none of the first ones shares.
+    (``Simulator.rollout(repeat=...)``) that none of the first ones shares; ``revision`` names the task revision
+    (``task.REVISIONS``) the skill is drawn from.
     """
     from dcm.sim import DemoSpec, DomainSpec, Simulator
 
     path = skill_path(out_dir, seed) if not tag else Path(out_dir) / "skills" / f"paced_{seed}_{tag}.npz"
     if path.is_file():
         return path
-    spec_dict = {**bench.skill_spec(seed), **(spec_override or {})}
+    spec_dict = {**bench.skill_spec(seed, revision), **(spec_override or {})}
     spec = DemoSpec.from_dict(spec_dict, where=f"benchmark skill {seed}")
     dom = DomainSpec.resolve(domain)
     sim = Simulator(embodiment=embodiment, bowl=spec.bowl, domain=dom, control_hz=bench.CONTROL_HZ)

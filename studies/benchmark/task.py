@@ -23,6 +23,14 @@ N_PHASES = 3
 BOWL = {"shape": "spherical_cap", "rim_radius_m": 0.14, "depth_m": 0.04}
 FAMILY_PARAMS = {"harmonics": 3, "extent": 0.7, "speed_mps": [0.02, 0.20], "n_segments": N_PHASES,
                  "blend_s": 0.8, "press_range_m": [0.005, 0.015]}
+# Task revisions: what each changes in FAMILY_PARAMS. "paced" is the task PROTOCOL.md section 1 describes;
+# "fast_third" gives every skill one fast third (0.10-0.20 m/s) at a drawn place and two slow ones
+# (0.02-0.05 m/s), so that where stiffness could pay differs between skills (docs/benchmark_task.md).
+REVISIONS: dict[str, dict[str, Any]] = {
+    "paced": {},
+    "fast_third": {"speed_mps": [0.02, 0.05], "fast_speed_mps": [0.10, 0.20]},
+}
+REVISION = "paced"
 DEMO_STIFFNESS_NPM = 800.0
 
 # Seeds of the skills by split. Train seeds are for designing the task and finding the fixed rules; valid seeds
@@ -37,9 +45,12 @@ ROLLOUTS = 8
 RULE_SIZE = 5  # a fixed rule proposes as many schedules as the prior (the robot budget of a tuner's validation)
 
 
-def skill_spec(seed: int) -> dict[str, Any]:
-    """The DemoSpec mapping of the skill drawn with ``seed``."""
-    return {"name": f"paced_{seed}", "family": "paced_curve", "params": {"seed": int(seed), **FAMILY_PARAMS},
+def skill_spec(seed: int, revision: str = REVISION) -> dict[str, Any]:
+    """The DemoSpec mapping of the skill drawn with ``seed`` in task ``revision`` (a key of ``REVISIONS``)."""
+    if revision not in REVISIONS:
+        raise ValueError(f"benchmark task revision {revision!r} is unknown; known: {sorted(REVISIONS)}")
+    params = {"seed": int(seed), **FAMILY_PARAMS, **REVISIONS[revision]}
+    return {"name": f"paced_{seed}", "family": "paced_curve", "params": params,
             "press_m": 0.01, "duration_s": DURATION_S, "approach_s": APPROACH_S,
             "stiffness_Npm": [DEMO_STIFFNESS_NPM] * 3, "bowl": dict(BOWL), "lead": True}
 

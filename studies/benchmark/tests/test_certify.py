@@ -78,3 +78,15 @@ def test_oracle_schedules_hold_grid_prior_and_demo():
     constants = {row[0] for row in sched.phase_Npm if len(set(row)) == 1}
     assert set(bench.PRIOR_LEVELS_NPM) <= constants and bench.DEMO_STIFFNESS_NPM in constants
     assert len(bench.PRIOR_LEVELS_NPM) == 5
+
+
+def test_revisions_change_only_their_family_params():
+    """The default revision is the task PROTOCOL.md describes; "fast_third" draws one fast third per skill."""
+    from dcm.sim import DemoSpec
+
+    assert bench.skill_spec(2000) == bench.skill_spec(2000, "paced")
+    assert bench.skill_spec(2000)["params"] == {"seed": 2000, **bench.FAMILY_PARAMS}
+    speeds = DemoSpec.from_dict(bench.skill_spec(2000, "fast_third")).curve_draws()["speed_mps"]
+    assert (speeds >= 0.10).sum() == 1 and speeds.min() >= 0.02
+    with pytest.raises(ValueError, match="revision 'nope'"):
+        bench.skill_spec(2000, "nope")
