@@ -90,3 +90,12 @@ def test_revisions_change_only_their_family_params():
     assert (speeds >= 0.10).sum() == 1 and speeds.min() >= 0.02
     with pytest.raises(ValueError, match="revision 'nope'"):
         bench.skill_spec(2000, "nope")
+
+
+def test_probe_schedules_put_the_stiffness_in_the_fastest_third():
+    from studies.benchmark.probe import probe_schedules
+
+    rows = probe_schedules(np.array([0.03, 0.15, 0.04]))
+    per_phase = rows[~np.all(rows == rows[:, :1], axis=1)]
+    assert len(per_phase) == 4 and np.all(per_phase[:, 1] >= 1000.0) and np.all(per_phase[:, [0, 2]] <= 400.0)
+    assert {row[0] for row in rows if len(set(row)) == 1} == {*bench.PRIOR_LEVELS_NPM, bench.DEMO_STIFFNESS_NPM}
