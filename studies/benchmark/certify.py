@@ -8,7 +8,8 @@ Every skill of the split gets every oracle schedule (``task.oracle_schedules``) 
 times; each schedule is judged by its mean L_task. Then, per skill, the best schedule and the best constant
 schedule within its L_comp are re-run on fresh rollouts, so the T2 gain is not the winner's luck. The fixed
 rule of T3 is fitted on the train split's oracle only (``--rule-from``). Skills run in up to two worker
-processes; a finished skill is kept, so a killed run resumes.
+processes; a finished skill is kept, so a killed run resumes. ``--revision`` picks a task revision
+(``task.REVISIONS``); the default is the task PROTOCOL.md describes.
 """
 
 from __future__ import annotations
