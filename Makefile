@@ -25,7 +25,7 @@ rollout: install
 
 test: install
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest tests studies
+	$(BIN)/python -m pytest tests studies -n auto --dist loadfile
 
 bench: install
 	$(BIN)/python bench/sim_throughput.py

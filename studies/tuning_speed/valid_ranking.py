@@ -25,6 +25,7 @@ import numpy as np
 # label -> (sampler, sampling steps, samples, task loss, shared steps); None keeps the checkpoint's
 SETTINGS = {
     "own": (None, None, 1, "of_mean", 0),
+    "ddim5": ("ddim", 5, 1, "of_mean", 0),  # the tuner's default before DDIM-3
     "ddim3": ("ddim", 3, 1, "of_mean", 0),
     "ddim3_k16_independent": ("ddim", 3, 16, "over_samples", 0),
     "ddim3_k16_shared": ("ddim", 3, 16, "over_samples", "auto"),
