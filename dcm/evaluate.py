@@ -111,7 +111,7 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
              prior_weight: float = 0.0) -> dict[str, Any]:
     """Metrics of predictor ``ckpt`` on ``split`` of ``dataset``, with the references for a learned model.
 
-    ``sampler`` / ``sampling_steps`` override a DCM's sampler (ddpm | ddim and DDIM's steps) for this run,
+    ``sampler`` / ``sampling_steps`` override a DCM's sampler (ddpm | ddim | ddim_even, and its steps) for this run,
     ``task_loss`` how its samples give L_task (of_mean | over_samples; the same for the baseline).
     ``task_from_s``: score only the force from this time on, e.g. 1.0 to leave out the demos' approach and
     touch-down (:func:`dcm.control.objectives.task_window_start`). ``prior`` / ``prior_weight``: rank with the

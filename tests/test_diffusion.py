@@ -8,6 +8,7 @@ from omegaconf import OmegaConf
 
 from dcm.models.diffusion import (
     MAX_T,
+    SAMPLERS,
     SCHEDULES,
     NoiseSchedule,
     ScheduleError,
@@ -35,7 +36,7 @@ def test_alpha_bar_T_small_for_every_T(schedule: str) -> None:
         assert (ab[1:] < ab[:-1]).all()
         # the diffusers scheduler holds exactly these values (as float32)
         if T in (1, 30, 100):
-            for kind in ("ddpm", "ddim"):
+            for kind in SAMPLERS:
                 sch = make_scheduler(kind, schedule, T)
                 assert torch.allclose(sch.alphas_cumprod.double(), ab, rtol=1e-3, atol=1e-9)  # float32 1-beta
 
@@ -110,15 +111,37 @@ def test_ddpm_with_oracle_recovers_x0(schedule: str, T: int, steps: int | None) 
 
 
 @pytest.mark.parametrize("schedule", SCHEDULES)
-@pytest.mark.parametrize("T,steps", [(30, 10), (30, 30), (30, 1), (100, 20), (1, 1)])
-def test_ddim_with_oracle_recovers_x0(schedule: str, T: int, steps: int) -> None:
-    sch = make_scheduler("ddim", schedule, T)
+@pytest.mark.parametrize("T,steps", [(30, 10), (30, 30), (30, 1), (100, 20), (1, 1), (30, 2), (30, 3)])
+@pytest.mark.parametrize("kind", ["ddim", "ddim_even"])
+def test_deterministic_samplers_with_oracle_recover_x0(kind: str, schedule: str, T: int, steps: int) -> None:
+    sch = make_scheduler(kind, schedule, T)
     x0 = _x0()
     out = sample(_oracle(sch), x0, x0.shape, sch, steps, torch.Generator().manual_seed(1))
     # diffusers does the step in float32: its rounding (~1e-7) is amplified by 1/sqrt(alpha_bar) of the
     # first step, which a one-step chain from t = T-1 (alpha_bar ~ 1e-6) exposes directly.
     atol = 1e-5 if steps > 1 else 1e-3
     assert torch.allclose(out, x0, atol=atol), (out - x0).abs().max()
+
+
+def test_ddim_even_spreads_its_steps_to_t0_and_is_ddim_on_the_same_chain() -> None:
+    """Known answer: first-order DPM-Solver++ is the DDIM update, clip included, so on DDIM's own chain both
+    samplers draw the same forces; only the chain differs (any step count, the last step at t = 0)."""
+    even = make_scheduler("ddim_even", "linear", 30, "sample")
+    for n, chain in [(1, [29]), (2, [29, 0]), (3, [29, 14, 0]), (4, [29, 19, 10, 0]), (5, [29, 22, 14, 7, 0])]:
+        even.set_timesteps(n)
+        assert even.timesteps.tolist() == chain
+    ddim = make_scheduler("ddim", "linear", 30, "sample")
+    on_ddim_chain = make_scheduler("ddim_even", "linear", 30, "sample")
+    on_ddim_chain.set_timesteps = lambda n, device=None: type(on_ddim_chain).__base__.set_timesteps(
+        on_ddim_chain, timesteps=[29, 19, 9])
+    cond = torch.randn(3, 8, OUT, generator=torch.Generator().manual_seed(2))
+
+    def net(c: torch.Tensor, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return 2.5 * torch.tanh(0.7 * x + c)  # outside the clip range of 1.5: the clip is exercised
+
+    a = sample(net, cond, cond.shape, ddim, 3, torch.Generator().manual_seed(0))
+    b = sample(net, cond, cond.shape, on_ddim_chain, 3, torch.Generator().manual_seed(0))
+    assert a.abs().max() == pytest.approx(1.5) and torch.allclose(a, b, atol=1e-5), (a - b).abs().max()
 
 
 def test_sample_many_keeps_items_apart() -> None:

@@ -23,6 +23,14 @@ def _cfg(*overrides: str):
         return compose("tune", overrides=[*OK, *overrides])
 
 
+def test_the_sampler_names_are_the_models():
+    """The check keeps its own list, so tune.py refuses a bad sampler without importing torch."""
+    from dcm.models.diffusion import SAMPLERS as MODEL_SAMPLERS
+    from dcm.tuning.checks import SAMPLERS
+
+    assert SAMPLERS == MODEL_SAMPLERS
+
+
 def test_the_default_settings_pass():
     checked = check_config(_cfg())
     assert checked.spec.horizon(20.0) > 0 and checked.reference is None

@@ -21,7 +21,7 @@ from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; 
     target_channel_names,
 )
 from dcm.models.cond_encoding import COND_ENCODINGS
-from dcm.models.diffusion import INPUT_SCALINGS, PREDICTION_TYPES
+from dcm.models.diffusion import INPUT_SCALINGS, PREDICTION_TYPES, SAMPLERS
 from dcm.models.normalizer import NORMALIZATIONS
 
 
@@ -140,7 +140,6 @@ def _net_config(net: Mapping[str, Any]) -> dict[str, Any]:
 
 
 MAX_DIFFUSION_STEPS = 100
-SAMPLERS = ("ddpm", "ddim")
 
 
 @dataclass
@@ -154,8 +153,8 @@ class DCMConfig(ForceModelConfig):
     # noise schedule: dcm.models.diffusion.NoiseSchedule fields (name, beta_start, ...); conf/schedule/*.yaml
     # omitted fields take NoiseSchedule's defaults (incl. clipping the x0 estimate, which sampling needs)
     schedule: dict[str, Any] = field(default_factory=lambda: {"name": "linear"})
-    sampler: str = "ddpm"  # ddpm (ancestral, T steps) | ddim (deterministic, sampling_steps)
-    sampling_steps: int | None = None  # DDIM only; None = T
+    sampler: str = "ddpm"  # ddpm (ancestral, T steps) | ddim | ddim_even (deterministic, sampling_steps)
+    sampling_steps: int | None = None  # None = T
     n_samples: int = 1  # k samples averaged per prediction during evaluation
     # L_task of k samples: of_mean (of their mean force) | over_samples (RMS over the samples' L_task, i.e. the
     # expected loss, spread included: what a model of the force distribution adds over one of its mean)

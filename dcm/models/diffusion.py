@@ -9,8 +9,9 @@ Conventions
 - Every schedule is rescaled with T so the forward process ends near pure noise (alpha_bar_T <= ~1e-3)
   for every T in 1..100. The textbook linear endpoints (1e-4, 0.02) were tuned for T=1000: at T=30 they
   leave alpha_bar_T ~ 0.74, so the sampler would start from a distribution the net never saw.
-- Schedulers are diffusers' DDPMScheduler / DDIMScheduler fed with our own `trained_betas`, with every
-  default that changes results set explicitly in `make_scheduler`.
+- Schedulers are diffusers' DDPMScheduler / DDIMScheduler / DPMSolverMultistepScheduler (first order, which is
+  DDIM, for `ddim_even`) fed with our own `trained_betas`, with every default that changes results set
+  explicitly in `make_scheduler`.
 """
 
 from __future__ import annotations
@@ -22,10 +23,11 @@ from typing import Literal
 
 import numpy as np
 import torch
-from diffusers import DDIMScheduler, DDPMScheduler
+from diffusers import DDIMScheduler, DDPMScheduler, DPMSolverMultistepScheduler
 from diffusers.utils.torch_utils import randn_tensor
 
 __all__ = [
+    "SAMPLERS",
     "SCHEDULES",
     "PREDICTION_TYPES",
     "MAX_BETA",
@@ -49,6 +51,9 @@ __all__ = [
     "scale_noisy_input",
 ]
 
+# ddpm: ancestral; ddim: deterministic, n steps T-1, T-1-T/n, ... (ends at T/n - 1); ddim_even: deterministic, n
+# steps spread evenly from T-1 to 0, so the last net call sees an almost clean force
+SAMPLERS = ("ddpm", "ddim", "ddim_even")
 SCHEDULES = ("linear", "cosine", "sigmoid", "scaled_linear")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 INPUT_SCALINGS = ("unit", "signal")
@@ -60,7 +65,32 @@ MAX_T = 100
 SHARED_NOISE_STD = 0.1
 
 ScoreNet = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
-Scheduler = DDPMScheduler | DDIMScheduler
+
+
+class EvenDDIMScheduler(DPMSolverMultistepScheduler):
+    """DDIM over n timesteps spread evenly from T-1 down to 0 (``np.linspace(T-1, 0, n)``, rounded).
+
+    Why: diffusers' DDIMScheduler jumps by T // n, so a short chain's last net call is at t = T/n - 1 (t = 9 of
+    30 at three steps), where the net still sees much noise; ending at t = 0 ranks a skill's schedules better at
+    the same number of net calls (studies/tuning_speed/reports/even_steps.md). DDIMScheduler cannot take
+    such a chain, but first-order DPM-Solver++ is the DDIM update, and it takes explicit timesteps. It lacks
+    DDIM's static clip of the x0 estimate, which `convert_model_output` adds here.
+    """
+
+    clip_range: float | None = None
+
+    def set_timesteps(self, num_inference_steps: int | None = None, device: str | torch.device | None = None,
+                      **_: object) -> None:
+        T = self.config.num_train_timesteps
+        chain = np.linspace(T - 1, 0, int(num_inference_steps)).round().astype(np.int64)  # n <= T: no repeats
+        super().set_timesteps(device=device, timesteps=chain.tolist())
+
+    def convert_model_output(self, model_output: torch.Tensor, *args: object, **kwargs: object) -> torch.Tensor:
+        x0 = super().convert_model_output(model_output, *args, **kwargs)
+        return x0 if self.clip_range is None else x0.clamp(-self.clip_range, self.clip_range)
+
+
+Scheduler = DDPMScheduler | DDIMScheduler | EvenDDIMScheduler
 
 
 class ScheduleError(ValueError):
@@ -166,7 +196,7 @@ class NoiseSchedule:
             self.name, T, beta_start=self.beta_start, beta_end=self.beta_end, reference_steps=self.reference_steps
         )
 
-    def scheduler(self, kind: Literal["ddpm", "ddim"], T: int) -> Scheduler:
+    def scheduler(self, kind: Literal["ddpm", "ddim", "ddim_even"], T: int) -> Scheduler:
         return make_scheduler(kind, self, T)
 
     def to_dict(self) -> dict:
@@ -184,7 +214,7 @@ def _as_schedule(schedule: str | NoiseSchedule | dict) -> NoiseSchedule:
 
 
 def make_scheduler(
-    kind: Literal["ddpm", "ddim"], schedule: str | NoiseSchedule | dict = "linear", T: int = 30,
+    kind: Literal["ddpm", "ddim", "ddim_even"], schedule: str | NoiseSchedule | dict = "linear", T: int = 30,
     prediction_type: str = "epsilon",
 ) -> Scheduler:
     """A diffusers scheduler over our betas, with every default that matters pinned.
@@ -195,6 +225,8 @@ def make_scheduler(
       and ends at t = -1; "leading" would start part-way down the chain.
     - DDIM: `set_alpha_to_one=True` so its last step returns the x0 estimate;
       `rescale_betas_zero_snr=False` (our alpha_bar_T is already ~0, and exact zero breaks epsilon-prediction).
+    - ddim_even (:class:`EvenDDIMScheduler`): first-order DPM-Solver++ in data prediction, whose last step
+      likewise returns the x0 estimate (`final_sigmas_type="zero"`).
     """
     sched, T = _as_schedule(schedule), _check_T(T)
     if prediction_type not in PREDICTION_TYPES:
@@ -217,7 +249,14 @@ def make_scheduler(
         return DDPMScheduler(variance_type=sched.variance_type, **common)
     if kind_l == "ddim":
         return DDIMScheduler(set_alpha_to_one=True, rescale_betas_zero_snr=False, **common)
-    raise ScheduleError(f"unknown sampler kind {kind!r}; choose 'ddpm' or 'ddim'")
+    if kind_l == "ddim_even":
+        even = EvenDDIMScheduler(
+            num_train_timesteps=T, trained_betas=betas, prediction_type=prediction_type, thresholding=False,
+            solver_order=1, algorithm_type="dpmsolver++", final_sigmas_type="zero", lower_order_final=True,
+        )
+        even.clip_range = common["clip_sample_range"] if clip else None
+        return even
+    raise ScheduleError(f"unknown sampler kind {kind!r}; choose one of {SAMPLERS}")
 
 
 def _alpha_bar_at(scheduler: Scheduler, timesteps: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
@@ -327,7 +366,8 @@ def sample(
     """Draw x0 ~ p_theta(x0 | cond) by reverse diffusion; returns a tensor of `shape` (B, H, out_dim).
 
     DDPM: ancestral sampling over all T steps (default) or a trailing subset. DDIM (eta = 0,
-    deterministic given the start noise): fewer steps, `num_inference_steps` must divide T.
+    deterministic given the start noise): fewer steps, `num_inference_steps` must divide T; ddim_even: any
+    number of steps, the last at t = 0.
     Runs on `cond`'s device and dtype; put the net in eval mode yourself. The scheduler is stateful
     (`set_timesteps`), so give each concurrent sampler its own.
     """

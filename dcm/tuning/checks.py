@@ -16,7 +16,7 @@ from dcm.control import TASK_LOSSES, phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import SearchSpace, check_budget, make_search, space_from_settings
 
-SAMPLERS = ("ddpm", "ddim")
+SAMPLERS = ("ddpm", "ddim", "ddim_even")  # dcm.models.diffusion.SAMPLERS, without importing torch
 
 
 class TuneConfigError(ValueError):
@@ -157,7 +157,8 @@ def check_config(cfg: Any) -> CheckedConfig:
     _integer(robot.n_trials, "robot_based.n_trials", 0, " (0 skips the robot-based search)")
     sampler = free.get("sampler")
     if sampler is not None and sampler not in SAMPLERS:
-        raise TuneConfigError(f"robot_free.sampler = {sampler!r}; expected null (the checkpoint's), ddpm or ddim")
+        raise TuneConfigError(f"robot_free.sampler = {sampler!r}; expected null (the checkpoint's), "
+                              + ", ".join(SAMPLERS))
     if free.get("sampling_steps") is not None:
         _integer(free.sampling_steps, "robot_free.sampling_steps", 1, " or null")
     if free.get("shared_steps") not in (None, "auto"):

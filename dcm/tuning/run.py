@@ -80,8 +80,9 @@ def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | No
     (:meth:`dcm.models.dcm.DCM.set_sampler`; the checkpoint file is untouched): a run trades the full chain's
     accuracy for speed without a new checkpoint.
 
-    ``sampler``: ``"ddpm"`` (ancestral) or ``"ddim"`` (deterministic given the start noise); None keeps the
-    checkpoint's. ``sampling_steps``: steps of the chain (DDIM: must divide T); None keeps the checkpoint's
+    ``sampler``: ``"ddpm"`` (ancestral), ``"ddim"`` or ``"ddim_even"`` (deterministic given the start noise;
+    the latter's steps end at t = 0); None keeps the checkpoint's. ``sampling_steps``: steps of the chain
+    (ddim: must divide T); None keeps the checkpoint's
     when the sampler is unchanged, else T. Predictors that do not diffuse (baseline, stiffness reference) are
     left alone. Returns whether ``model`` was changed; raises :class:`TuneConfigError` naming
     ``robot_free.sampling_steps`` for a step count the sampler cannot run.

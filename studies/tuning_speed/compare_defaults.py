@@ -1,7 +1,8 @@
 """Does the fast robot-free default tune as well as the one before it? Paired I_H over tuning seeds, per skill.
 
     python -m studies.tuning_speed.compare_defaults [--skills wavelike line spiral] [--seeds 16] [--threads 1]
-        [--tuners old new ddim1 ...] [--out outputs/studies/tuning_speed] [--report studies/tuning_speed/reports/<name>.md]
+        [--tuners old new ddim1 ...] [--against old] [--out outputs/studies/tuning_speed]
+        [--report studies/tuning_speed/reports/<name>.md]
 
 Why: the fast default changes three things at once (fewer DDIM steps than five, bfloat16 matrix products
 where the CPU has them, one MOTPE fit per batch of proposals instead of one per proposal), each of which could
@@ -9,13 +10,15 @@ cost hypervolume. Per skill (recorded as ``conf/quickstart.yaml`` records its de
 tuners run :func:`dcm.tuning.run.tune` with the shipped DCM, five validated solutions and no robot-based search:
 
 * ``new``: ``conf/tune.yaml`` as it is (``ddim1`` ... ``ddim5``: with that many steps, the levers apart);
-* ``old``: ``robot_free.sampling_steps=5 robot_free.precision=float32 robot_free.batched_search=false``, and
+* ``old``: ``robot_free.sampler=ddim robot_free.sampling_steps=5 robot_free.precision=float32
+  robot_free.batched_search=false``, and
   the RetNet's parallel form (the chunkwise one gives the same outputs up to float rounding).
 
 Both are scored on ONE reference point per skill: the worst validated L_task and L_comp over every solution of
 both tuners and all seeds, pushed out by 10 % of their range (:func:`dcm.tuning.pareto.reference_point`), so
 neither tuner sets the point the other is judged against. The test is the paired two-sided Wilcoxon
-signed-rank test of new against old (:func:`studies.tuning_study.study_stats.paired_test`). A finished run
+signed-rank test of each tuner against ``--against`` (``old`` unless given;
+:func:`studies.tuning_study.study_stats.paired_test`). A finished run
 (``results.json``) is never redone, so a killed comparison resumes where it stopped.
 """
 
@@ -35,13 +38,17 @@ import numpy as np
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 TUNERS = {
-    "old": ["robot_free.sampling_steps=5", "robot_free.precision=float32", "robot_free.batched_search=false"],
+    "old": ["robot_free.sampler=ddim", "robot_free.sampling_steps=5", "robot_free.precision=float32",
+            "robot_free.batched_search=false"],
     "new": [],
     # the default's levers apart: which one costs hypervolume where it does
-    "ddim1": ["robot_free.sampling_steps=1"],
-    "ddim2": ["robot_free.sampling_steps=2"],
-    "ddim3": ["robot_free.sampling_steps=3"],
-    "ddim5": ["robot_free.sampling_steps=5"],
+    "ddim1": ["robot_free.sampler=ddim", "robot_free.sampling_steps=1"],
+    "ddim2": ["robot_free.sampler=ddim", "robot_free.sampling_steps=2"],
+    "ddim3": ["robot_free.sampler=ddim", "robot_free.sampling_steps=3"],
+    "ddim5": ["robot_free.sampler=ddim", "robot_free.sampling_steps=5"],
+    # DDIM steps spread evenly from t = T-1 to t = 0
+    "even2": ["robot_free.sampler=ddim_even", "robot_free.sampling_steps=2"],
+    "even3": ["robot_free.sampler=ddim_even", "robot_free.sampling_steps=3"],
 }
 
 
@@ -89,25 +96,25 @@ def validated(results: dict[str, Any]) -> np.ndarray:
     return points[np.isfinite(points).all(axis=1)]
 
 
-def compare(runs: dict[str, dict[str, list[dict[str, Any]]]]) -> dict[str, Any]:
-    """Per skill and tuner other than ``old``: the reference point of that pair, both tuners' I_H per seed
-    against it, medians and the paired test of the tuner against ``old``."""
+def compare(runs: dict[str, dict[str, list[dict[str, Any]]]], against: str = "old") -> dict[str, Any]:
+    """Per skill and tuner other than ``against``: the reference point of that pair, both tuners' I_H per seed
+    against it, medians and the paired test of the tuner against ``against``."""
     from dcm.tuning.pareto import hypervolume, reference_point
     from studies.tuning_study.study_stats import paired_test, summarize
 
     report: dict[str, Any] = {}
     for skill, by_tuner in runs.items():
         for tuner, results in by_tuner.items():
-            if tuner == "old":
+            if tuner == against:
                 continue
-            pair = {"old": by_tuner["old"], tuner: results}
+            pair = {against: by_tuner[against], tuner: results}
             reference = reference_point(*[validated(r) for rs in pair.values() for r in rs])
             hv = {t: [hypervolume(validated(r), reference) if len(validated(r)) else float("nan") for r in rs]
                   for t, rs in pair.items()}
             report.setdefault(skill, {})[tuner] = {
                 "reference_point": reference.tolist(), "I_H": hv,
                 "summary": {t: summarize(values) for t, values in hv.items()},
-                "test_vs_old": paired_test(hv[tuner], hv["old"]),
+                "against": against, "test": paired_test(hv[tuner], hv[against]),
                 "median_robot_free_seconds": {t: float(np.median([r["robot_free"]["seconds"] for r in rs]))
                                               for t, rs in pair.items()}}
     return report
@@ -124,7 +131,8 @@ def machine() -> str:
 
 
 def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[float], list[float]],
-             wall_s: float) -> str:
+             wall_s: float, against: str = "old") -> str:
+    a = against
     lines = [
         "# Fast robot-free default against the previous one: I_H over tuning seeds",
         "",
@@ -140,25 +148,25 @@ def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[
          f"Shipped DCM, the quickstart's recording (12 s, leading demonstrator), {seeds} tuning seeds, 1,000 "
          "virtual trials, 5 validated solutions, one torch thread. Reference point per skill and pair: the worst "
          "validated (L_task, L_comp) over both tuners' solutions of all seeds + 10 % of the range, the same for "
-         "both tuners of the pair. Test: paired two-sided Wilcoxon signed-rank, tuner against old."),
+         f"both tuners of the pair. Test: paired two-sided Wilcoxon signed-rank, tuner against {a}."),
         "",
-        ("| skill | tuner | reference point (N, kN/m) | n | median I_H old | median I_H tuner "
-         "| median difference tuner - old | wins/losses | Wilcoxon p | median robot-free s old / tuner |"),
+        (f"| skill | tuner | reference point (N, kN/m) | n | median I_H {a} | median I_H tuner "
+         f"| median difference tuner - {a} | wins/losses | Wilcoxon p | median robot-free s {a} / tuner |"),
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for skill, by_tuner in report.items():
         for tuner, r in by_tuner.items():
-            test, s = r["test_vs_old"], r["summary"]
+            test, s = r["test"], r["summary"]
             p = "n/a" if test["p"] is None else f"{test['p']:.3f}"
             secs = r["median_robot_free_seconds"]
             lines.append(f"| {skill} | {tuner} | ({r['reference_point'][0]:.3f}, {r['reference_point'][1]:.3f}) | "
-                         f"{test['n_pairs']} | {s['old']['median']:.4f} | {s[tuner]['median']:.4f} | "
+                         f"{test['n_pairs']} | {s[a]['median']:.4f} | {s[tuner]['median']:.4f} | "
                          f"{test['median_difference']:+.4f} | {test['wins']}/{test['losses']} | {p} | "
-                         f"{secs['old']:.1f} / {secs[tuner]:.1f} |")
-    lines += ["", "Per seed I_H (old, tuner), each pair on its own reference point:", ""]
+                         f"{secs[a]:.1f} / {secs[tuner]:.1f} |")
+    lines += ["", f"Per seed I_H ({a}, tuner), each pair on its own reference point:", ""]
     for skill, by_tuner in report.items():
         for tuner, r in by_tuner.items():
-            pairs = ", ".join(f"({a:.3f}, {b:.3f})" for a, b in zip(r["I_H"]["old"], r["I_H"][tuner]))
+            pairs = ", ".join(f"({a:.3f}, {b:.3f})" for a, b in zip(r["I_H"][a], r["I_H"][tuner]))
             lines.append(f"- {skill}, {tuner}: {pairs}")
     return "\n".join(lines) + "\n"
 
@@ -171,26 +179,27 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/studies/tuning_speed"))
     parser.add_argument("--report", type=Path, default=None, help="write the markdown report here")
     parser.add_argument("--tuners", nargs="+", choices=sorted(TUNERS), default=["old", "new"],
-                        help="tuners to run and report, each against old")
+                        help="tuners to run and report, each against --against")
+    parser.add_argument("--against", choices=sorted(TUNERS), default="old", help="the tuner every other is paired with")
     parser.add_argument("--only", choices=sorted(TUNERS), default=None, help="run one tuner only (no report)")
     args = parser.parse_args(argv)
 
     load_start, start = list(os.getloadavg()), time.perf_counter()
     runs: dict[str, dict[str, list[dict[str, Any]]]] = {}
     for skill in args.skills:
-        for tuner in ([args.only] if args.only else ["old", *[t for t in args.tuners if t != "old"]]):
+        for tuner in ([args.only] if args.only else [args.against, *[t for t in args.tuners if t != args.against]]):
             for seed in range(args.seeds):
                 results = run_one(skill, seed, tuner, args.threads, args.out)
                 runs.setdefault(skill, {}).setdefault(tuner, []).append(results)
                 print(f"{skill} {tuner} seed {seed}: robot-free {results['robot_free']['seconds']:.1f} s", flush=True)
     if args.only:
         return
-    report = compare(runs)
+    report = compare(runs, args.against)
     (args.out / "compare_defaults.json").write_text(json.dumps(report, indent=2))
     command = "python -m studies.tuning_speed.compare_defaults " + " ".join(argv if argv is not None else
                                                                             __import__("sys").argv[1:])
     text = markdown(report, command.strip(), args.seeds, (load_start, list(os.getloadavg())),
-                    time.perf_counter() - start)
+                    time.perf_counter() - start, args.against)
     print(text)
     if args.report is not None:
         args.report.parent.mkdir(parents=True, exist_ok=True)

@@ -2,6 +2,7 @@
 
     python -m studies.tuning_speed.valid_ranking [--dataset data/diverse_contact_valid.h5] [--split valid]
         [--ckpt models/dcm_diverse_contact.ckpt] [--seeds 0 1 2] [--threads 1] [--settings own ddim3 ...]
+        [--first N]
 
 Why: the robot-free search only needs the model's order of one skill's schedules, and the model table's
 metric for that is the Spearman correlation of predicted against simulated L_task across one skill's trials,
@@ -29,6 +30,11 @@ SETTINGS = {
     "ddim3": ("ddim", 3, 1, "of_mean", 0),
     "ddim3_k16_independent": ("ddim", 3, 16, "over_samples", 0),
     "ddim3_k16_shared": ("ddim", 3, 16, "over_samples", "auto"),
+    # steps spread evenly from t = T-1 to t = 0 (the last net call sees an almost clean force)
+    "even2": ("ddim_even", 2, 1, "of_mean", 0),
+    "even3": ("ddim_even", 3, 1, "of_mean", 0),
+    "even2_k16_shared": ("ddim_even", 2, 16, "over_samples", "auto"),
+    "even3_k16_shared": ("ddim_even", 3, 16, "over_samples", "auto"),
 }
 
 
@@ -49,6 +55,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument("--first", type=int, default=None,
+                        help="score only the split's first N trials (whole skills when N is a multiple of 20)")
     args = parser.parse_args(argv)
 
     import torch
@@ -60,7 +68,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     torch.set_num_threads(args.threads)
     loaded = load_dataset(args.dataset, split=args.split)
-    data, skills = TrajectoryDataset.from_loaded(loaded), loaded.demo_ids
+    data, skills = TrajectoryDataset.from_loaded(loaded).subset(args.first), loaded.demo_ids[: args.first]
     print(f"{args.ckpt} on {args.dataset} ({args.split}: {len(data)} trials, {len(np.unique(skills))} skills), "
           f"seeds {args.seeds}, torch threads {args.threads}, load average "
           f"{'/'.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
