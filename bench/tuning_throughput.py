@@ -39,7 +39,7 @@ def main() -> None:
     parser.add_argument("--ckpt", required=True, type=Path, help="a DCM or baseline checkpoint")
     parser.add_argument("--trials", type=int, default=1000)
     parser.add_argument("--batch-sizes", type=int, nargs="+", default=[50])
-    parser.add_argument("--grid", nargs="+", default=["ddpm:30", "ddim:10", "ddim:5", "ddim:3"],
+    parser.add_argument("--grid", nargs="+", default=["ddpm:30", "ddim:10", "ddim:5", "ddim:3", "ddim_even:2"],
                         help="sampler:steps entries (a baseline ignores them and runs once)")
     parser.add_argument("--embodiment", default="panda")
     parser.add_argument("--demo", default="wavelike", help="conf/demo/<name>.yaml")
@@ -96,7 +96,7 @@ def main() -> None:
     print(f"checkpoint {args.ckpt} ({type(probe).__name__}, T = {T}), {args.trials} virtual trials, demo {args.demo} "
           f"(H = {demo.horizon}) on {args.embodiment}, search {args.search} {options}, torch threads "
           f"{torch.get_num_threads()}, {os.cpu_count()} CPUs, load average {_load_average()} at start")
-    header = (f"{'sampler':>8} {'steps':>5} {'batch':>5} | {'wall s':>7} {'model s':>7} {'inputs s':>8} "
+    header = (f"{'sampler':>9} {'steps':>5} {'batch':>5} | {'wall s':>7} {'model s':>7} {'inputs s':>8} "
               f"{'optim s':>7} {'other s':>7} | {'trials/s':>8} {'CPU s':>7} {'load avg':>14}")
     rows = []
     for batch in args.batch_sizes:

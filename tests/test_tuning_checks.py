@@ -31,6 +31,15 @@ def test_the_sampler_names_are_the_models():
     assert SAMPLERS == MODEL_SAMPLERS
 
 
+def test_a_loss_over_samples_that_barely_differ_is_named():
+    from dcm.tuning.checks import spread_warning
+
+    why = spread_warning("ddim_even", 16, "over_samples")
+    assert why is not None and "robot_free.sampler=ddim robot_free.sampling_steps=3" in why
+    for quiet in [("ddim", 16, "over_samples"), ("ddim_even", 1, "over_samples"), ("ddim_even", 16, "of_mean")]:
+        assert spread_warning(*quiet) is None
+
+
 def test_the_default_settings_pass():
     checked = check_config(_cfg())
     assert checked.spec.horizon(20.0) > 0 and checked.reference is None

@@ -214,6 +214,7 @@ def test_the_sampler_override_changes_the_denoising_steps(tiny_checkpoint: Path)
     fresh = load_model(tiny_checkpoint)
     assert use_sampler(fresh, "ddim", None) and net_calls(fresh) == 5  # another sampler, no steps given: T
     assert use_sampler(fresh, None, 1) and net_calls(fresh) == 1  # steps alone keep the sampler
+    assert use_sampler(fresh, "ddim_even", 2) and net_calls(fresh) == 2  # any step count: t = 4, then t = 0
     with pytest.raises(TuneConfigError, match="robot_free.sampling_steps = 2 with robot_free.sampler = ddim: .*T=5"):
         use_sampler(model, "ddim", 2)
     assert not use_sampler(object(), "ddim", 1)  # predictors that do not diffuse are left alone

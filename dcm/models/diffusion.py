@@ -71,10 +71,10 @@ class EvenDDIMScheduler(DPMSolverMultistepScheduler):
     """DDIM over n timesteps spread evenly from T-1 down to 0 (``np.linspace(T-1, 0, n)``, rounded).
 
     Why: diffusers' DDIMScheduler jumps by T // n, so a short chain's last net call is at t = T/n - 1 (t = 9 of
-    30 at three steps), where the net still sees much noise; ending at t = 0 ranks a skill's schedules better at
-    the same number of net calls (studies/tuning_speed/reports/even_steps.md). DDIMScheduler cannot take
-    such a chain, but first-order DPM-Solver++ is the DDIM update, and it takes explicit timesteps. It lacks
-    DDIM's static clip of the x0 estimate, which `convert_model_output` adds here.
+    30 at three steps), where the net still sees much noise; a chain ending at t = 0 gives the x0 estimate of an
+    almost clean input (measured in docs/tune.md). DDIMScheduler cannot take such a chain, but first-order
+    DPM-Solver++ is the DDIM update, and it takes explicit timesteps. It lacks DDIM's static clip of the x0
+    estimate, which `convert_model_output` adds here.
     """
 
     clip_range: float | None = None

@@ -269,6 +269,21 @@ def bowl_override(bowl: Any, **changes: Any) -> str:
 
 
 
+class SampleSpreadWarning(UserWarning):
+    """The samples of one prediction branch only where the net sees an almost clean force, so they barely differ
+    and a loss over them ranks by about the mean alone."""
+
+
+def spread_warning(sampler: str | None, n_samples: int, task_loss: str | None) -> str | None:
+    """Why ``task_loss=over_samples`` will see little spread under ``sampler``; None where it will not.
+    ddim_even's last step is at t = 0, where the samples of a proposal converge; ddim's last step, at t = T/n - 1,
+    keeps their spread."""
+    if sampler != "ddim_even" or n_samples <= 1 or task_loss != "over_samples":
+        return None
+    return ("robot_free.sampler=ddim_even ends its chain at t = 0, where the robot_free.n_samples barely differ; "
+            "robot_free.sampler=ddim robot_free.sampling_steps=3 keeps the spread task_loss=over_samples ranks by")
+
+
 # ----------------------------------------------------------------------------------------------- guessing
 class ConditioningRangeWarning(UserWarning):
     """A model input of this skill lies far outside the range the model was trained on: its predictions there

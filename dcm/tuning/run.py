@@ -40,6 +40,7 @@ from dcm.tuning.checks import (
     ConditioningRangeWarning,
     DemoRecordingWarning,
     PredictionErrorWarning,
+    SampleSpreadWarning,
     TuneConfigError,
     check_config,
     check_predictor,
@@ -48,6 +49,7 @@ from dcm.tuning.checks import (
     prediction_check,
     prediction_limit,
     recording_mismatch,
+    spread_warning,
     to_container,
 )
 from dcm.tuning.objectives import ModelObjective, SimulatorObjective, Skill
@@ -109,6 +111,7 @@ def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
     its demo is recorded otherwise than the predictor's training demos), with ``robot_free``'s sampler, sampling
     steps, precision and task loss, and blended with the stiffness ridge ``prior`` at ``prior_weight`` when one is
     given (:mod:`dcm.models.prior_blend`)."""
+    from dcm.models.dcm import DCM
     from dcm.models.predict import load_model, with_prior
 
     model = load_model(cfg.ckpt, map_location=device)
@@ -128,6 +131,9 @@ def load_predictor(cfg: Any, spec: Any, device: Any) -> Any:
             raise TuneConfigError(f"robot_free.shared_steps: {err}") from None
     if cfg.robot_free.get("task_loss") is not None and hasattr(model, "set_task_loss"):  # not the ridge
         model.set_task_loss(cfg.robot_free.task_loss)
+    if isinstance(model, DCM) and (why := spread_warning(
+            model.cfg.sampler, int(cfg.robot_free.n_samples), model.cfg.task_loss)) is not None:
+        warnings.warn(why, SampleSpreadWarning, stacklevel=3)
     if cfg.get("prior"):
         try:
             model = with_prior(model, cfg.prior, cfg.get("prior_weight", 0.0), source=f"tune prior={cfg.prior}")

@@ -20,13 +20,14 @@ from pathlib import Path
 import numpy as np
 
 SETTINGS = {
-    "ddim-5 float32 (previous default)": ["robot_free.sampling_steps=5", "robot_free.precision=float32"],
-    "ddim-5 bfloat16": ["robot_free.sampling_steps=5", "robot_free.precision=bfloat16"],
-    "ddim-1 float32": ["robot_free.sampling_steps=1", "robot_free.precision=float32"],
-    "ddim-1 auto": ["robot_free.sampling_steps=1"],
-    "ddim-2 auto": ["robot_free.sampling_steps=2"],
-    "ddim-3 auto": ["robot_free.sampling_steps=3"],
-    "ddim-5 auto": ["robot_free.sampling_steps=5"],
+    "ddim-5 float32 (previous default)": ["robot_free.sampler=ddim", "robot_free.sampling_steps=5",
+                                          "robot_free.precision=float32"],
+    "ddim-5 bfloat16": ["robot_free.sampler=ddim", "robot_free.sampling_steps=5", "robot_free.precision=bfloat16"],
+    "ddim-1 float32": ["robot_free.sampler=ddim", "robot_free.sampling_steps=1", "robot_free.precision=float32"],
+    "ddim-1 auto": ["robot_free.sampler=ddim", "robot_free.sampling_steps=1"],
+    "ddim-2 auto": ["robot_free.sampler=ddim", "robot_free.sampling_steps=2"],
+    "ddim-3 auto": ["robot_free.sampler=ddim", "robot_free.sampling_steps=3"],
+    "ddim-5 auto": ["robot_free.sampler=ddim", "robot_free.sampling_steps=5"],
 }
 
 
