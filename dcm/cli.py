@@ -198,10 +198,20 @@ def config_groups(*groups: str) -> str:
                      for group in sorted(groups))
 
 
+def run_dir_of(resume: str | None, fresh_dir: str) -> str:
+    """Where an invocation writes its own config and log: ``fresh_dir``, or, when it resumes the existing run
+    directory ``resume``, ``<resume>/resumed/<fresh_dir's name>``, so that resuming a run adds no directory
+    elsewhere and leaves the run's own config record as it was."""
+    if resume and Path(resume).is_dir():
+        return str(Path(resume) / "resumed" / Path(fresh_dir).name)
+    return fresh_dir
+
+
 def _register_resolvers() -> None:
     from omegaconf import OmegaConf
 
     OmegaConf.register_resolver("dcm.config_groups", config_groups, replace=True)
+    OmegaConf.register_resolver("dcm.run_dir_of", run_dir_of, replace=True)
 
 
 _register_resolvers()

@@ -168,6 +168,19 @@ def test_a_failed_run_s_log_holds_its_error(tmp_path: Path):
     assert line in (run_dir / "tune.log").read_text()
 
 
+def test_resuming_writes_its_log_inside_the_run_and_nowhere_else(tmp_path: Path):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONWARNINGS"}
+    env.update(HYDRA_FULL_ERROR="0", MUJOCO_GL="egl")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()  # not a loop run: refused, and the refusal is logged with the run
+    proc = subprocess.run([sys.executable, str(REPO / "tune.py"), f"resume={run_dir}"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 1 and "no loop/config.yaml there" in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no outputs/ beside it
+    (log,) = (run_dir / "resumed").glob("*/tune.log")
+    assert "no loop/config.yaml there" in log.read_text()
+
+
 def _help_groups(*command: str) -> set[str]:
     env = {**os.environ, "MUJOCO_GL": "egl"}
     proc = subprocess.run([sys.executable, *command, "--help"], cwd=REPO, env=env, capture_output=True, text=True,
