@@ -23,9 +23,10 @@ demo: install
 rollout: install
 	$(BIN)/python -m dcm.sim.render --out docs/demo_rollout.png
 
+# One math thread per test process: two workers with a thread per core each would oversubscribe the cores.
 test: install
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest tests studies -n auto --dist loadfile
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest tests studies -n auto --dist loadfile
 
 bench: install
 	$(BIN)/python bench/sim_throughput.py
