@@ -20,18 +20,8 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from dcm.cli import CONF_DIR, quiet_libraries, to_run_log
+from dcm.training.checks import TrainConfigError, check_data_argument, check_dataset_overrides, check_resume_argument
 from dcm.training.run_dir import SUMMARY_FILE
-from dcm.training.train import (
-    USER_ERRORS,
-    TrainConfigError,
-    check_data_argument,
-    check_dataset_overrides,
-    check_resume_argument,
-    closing_summary,
-    resolve_resume,
-    reuse_run,
-    train,
-)
 
 # Third-party lines that say nothing about this run, each silenced by its logger or its exact message.
 _NOTICE_PREFIXES = ("💡 Tip:",)  # Lightning's advertisements of its cloud services (litlogger, litmodels)
@@ -56,6 +46,16 @@ def quiet_notices() -> None:
     warnings.filterwarnings("ignore", message=r"(val|test)/R_within is undefined")
 
 
+def _stop(err: Exception) -> None:
+    """One ``error:`` line on stderr and in the run's train.log, exit code 2; a sweep or HYDRA_FULL_ERROR=1
+    re-raises instead."""
+    if os.environ.get("HYDRA_FULL_ERROR") == "1" or HydraConfig.get().mode == RunMode.MULTIRUN:
+        raise err
+    print(f"error: {err}", file=sys.stderr)
+    to_run_log(f"error: {err}")  # the run directory's train.log says why the run stopped
+    sys.exit(2)
+
+
 # An absolute path: Hydra resolves a relative one against the package when this module is imported
 # (train.py, dcm-train), where the repository's conf/ is no package.
 @hydra.main(config_path=str(CONF_DIR), config_name="train")
@@ -65,6 +65,11 @@ def hydra_main(cfg: DictConfig) -> float | None:
     quiet_notices()
     try:
         check_dataset_overrides(HydraConfig.get().overrides.task)
+    except TrainConfigError as err:
+        _stop(err)
+    from dcm.training.train import USER_ERRORS, closing_summary, resolve_resume, reuse_run, train  # Lightning: slow
+
+    try:
         if cfg.get("resume"):
             cfg, run_dir = resolve_resume(cfg)
             summary = train(cfg, run_dir)
@@ -76,11 +81,7 @@ def hydra_main(cfg: DictConfig) -> float | None:
             else:
                 summary = train(cfg, run_dir)
     except USER_ERRORS as err:
-        if os.environ.get("HYDRA_FULL_ERROR") == "1" or HydraConfig.get().mode == RunMode.MULTIRUN:
-            raise
-        print(f"error: {err}", file=sys.stderr)
-        to_run_log(f"error: {err}")  # the run directory's train.log says why the run stopped
-        sys.exit(2)
+        _stop(err)
     print(closing_summary(summary), flush=True)
     score = summary.get("best_score")
     return None if score is None or not math.isfinite(score) else float(score)

@@ -16,7 +16,7 @@ import inspect
 import logging
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,13 @@ from dcm.models.dcm import DCM
 from dcm.models.force_model import ForceModel
 from dcm.models.nets import get_score_net_class
 from dcm.training import run_dir as rd
+from dcm.training.checks import (
+    TrainConfigError,
+    check_data_argument,
+    check_dataset_overrides,
+    check_resume_argument,
+    check_resume_dir,
+)
 
 log = logging.getLogger(__name__)
 
@@ -53,10 +60,6 @@ LEGACY_DATA_KEYS = ("preset", "generate_overrides", "stage", "usage_rate", "seed
 # Test metrics the closing summary prints (summary.json holds them all).
 SUMMARY_TEST_METRICS = ("R_within", "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy",
                         "L_MSE")
-
-
-class TrainConfigError(ValueError):
-    """An inconsistent training configuration (stage, init_from, resume, data.path ...)."""
 
 
 # What a user can get wrong (settings, files): reported in one line. Every dcm input error is a ValueError
@@ -104,27 +107,6 @@ def dataset_path(cfg: DictConfig) -> Path:
     search_path = config_search_path()
     overrides = [f"hydra.searchpath=[{','.join(search_path)}]"] if search_path else []
     return Path(ensure_dataset(str(cfg.dataset.name), path, overrides))
-
-
-def check_dataset_overrides(overrides: Sequence[str]) -> None:
-    """Refuse ``dataset.<key>=...``: a preset is generated and read as it is, so a changed field would be
-    recorded in config.yaml without being what the file holds."""
-    for override in overrides:
-        key = override.split("=", 1)[0].lstrip("+~")
-        if key.startswith("dataset."):
-            raise TrainConfigError(
-                f"{override}: the dataset preset is used as it is; to train on a variant, generate it "
-                f"(python -m dcm.data.generate dataset=<name> {override} out=<file.h5>) and pass data.path=<file.h5>")
-
-
-def check_data_argument(argv: Sequence[str]) -> None:
-    """Name the replacement of ``data=<preset>``, a form the train commands in model cards may record."""
-    for arg in argv:
-        if arg.startswith("data="):
-            value = arg.split("=", 1)[1]
-            fix = "data.path=<file.h5>" if value == "path" else f"dataset={value}"
-            raise TrainConfigError(f"{arg}: the dataset preset is chosen with dataset=<name> (conf/dataset/), an "
-                                   f"existing file with data.path=<file.h5>; here: {fix}")
 
 
 def build_datamodule(cfg: DictConfig, path: Path) -> DCMDataModule:
@@ -416,26 +398,6 @@ def reuse_run(cfg: DictConfig, run_dir: Path) -> dict[str, Any] | None:
 
 
 # ------------------------------------------------------------------------------------------------- resume
-def check_resume_dir(run_dir: Path) -> Path:
-    """The run directory to resume, refused unless it holds a saved config and its last checkpoint."""
-    if not run_dir.is_dir():
-        raise TrainConfigError(f"resume={run_dir}: no such directory")
-    if not rd.config_path(run_dir).is_file():
-        raise TrainConfigError(f"resume={run_dir}: no {rd.CONFIG_FILE} there (is it a train.py run directory?)")
-    if not rd.last_checkpoint(run_dir).is_file():
-        raise TrainConfigError(f"resume={run_dir}: no {rd.CHECKPOINT_DIR}/{rd.LAST_CHECKPOINT} to resume from")
-    return run_dir
-
-
-def check_resume_argument(argv: Sequence[str]) -> None:
-    """Check ``resume=<dir>`` before Hydra starts, so a wrong folder leaves no new outputs/train/<time>/ behind."""
-    for arg in argv:
-        if arg.startswith("resume="):
-            value = arg.split("=", 1)[1].strip("'\"")
-            if value and value != "null":
-                check_resume_dir(Path(value).expanduser().absolute())
-
-
 def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
     """The saved config and directory of the run to resume."""
     run_dir = check_resume_dir(Path(to_absolute_path(str(cfg.resume))))
