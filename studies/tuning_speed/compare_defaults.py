@@ -132,9 +132,9 @@ def machine() -> str:
 
 def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[float], list[float]],
              wall_s: float, against: str = "old") -> str:
-    a = against
+    base = against
     lines = [
-        "# Fast robot-free default against the previous one: I_H over tuning seeds",
+        f"# Robot-free tuners paired against `{base}`: I_H over tuning seeds",
         "",
         f"Command: `{command}`",
         "",
@@ -148,10 +148,10 @@ def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[
          f"Shipped DCM, the quickstart's recording (12 s, leading demonstrator), {seeds} tuning seeds, 1,000 "
          "virtual trials, 5 validated solutions, one torch thread. Reference point per skill and pair: the worst "
          "validated (L_task, L_comp) over both tuners' solutions of all seeds + 10 % of the range, the same for "
-         f"both tuners of the pair. Test: paired two-sided Wilcoxon signed-rank, tuner against {a}."),
+         f"both tuners of the pair. Test: paired two-sided Wilcoxon signed-rank, tuner against {base}."),
         "",
-        (f"| skill | tuner | reference point (N, kN/m) | n | median I_H {a} | median I_H tuner "
-         f"| median difference tuner - {a} | wins/losses | Wilcoxon p | median robot-free s {a} / tuner |"),
+        (f"| skill | tuner | reference point (N, kN/m) | n | median I_H {base} | median I_H tuner "
+         f"| median difference tuner - {base} | wins/losses | Wilcoxon p | median robot-free s {base} / tuner |"),
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for skill, by_tuner in report.items():
@@ -160,13 +160,13 @@ def markdown(report: dict[str, Any], command: str, seeds: int, load: tuple[list[
             p = "n/a" if test["p"] is None else f"{test['p']:.3f}"
             secs = r["median_robot_free_seconds"]
             lines.append(f"| {skill} | {tuner} | ({r['reference_point'][0]:.3f}, {r['reference_point'][1]:.3f}) | "
-                         f"{test['n_pairs']} | {s[a]['median']:.4f} | {s[tuner]['median']:.4f} | "
+                         f"{test['n_pairs']} | {s[base]['median']:.4f} | {s[tuner]['median']:.4f} | "
                          f"{test['median_difference']:+.4f} | {test['wins']}/{test['losses']} | {p} | "
-                         f"{secs[a]:.1f} / {secs[tuner]:.1f} |")
-    lines += ["", f"Per seed I_H ({a}, tuner), each pair on its own reference point:", ""]
+                         f"{secs[base]:.1f} / {secs[tuner]:.1f} |")
+    lines += ["", f"Per seed I_H ({base}, tuner), each pair on its own reference point:", ""]
     for skill, by_tuner in report.items():
         for tuner, r in by_tuner.items():
-            pairs = ", ".join(f"({a:.3f}, {b:.3f})" for a, b in zip(r["I_H"][a], r["I_H"][tuner]))
+            pairs = ", ".join(f"({x:.3f}, {y:.3f})" for x, y in zip(r["I_H"][base], r["I_H"][tuner]))
             lines.append(f"- {skill}, {tuner}: {pairs}")
     return "\n".join(lines) + "\n"
 
