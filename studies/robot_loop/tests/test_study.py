@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from studies.robot_loop.study import main
 
 
@@ -29,3 +31,27 @@ def test_a_tiny_study_judges_every_arm_resumes_and_reports(tiny_checkpoint: Path
     main(["--out", str(out), "--report", str(report)])
     text = report.read_text()
     assert "| loop_gp_15 | prior_15 |" in text and "one checkpoint" in text
+
+
+def _case(ckpt: str, seed: int, loop: float, one_shot: float) -> dict:
+    arms = {"loop_gp_15": loop, "one_shot_5": one_shot}
+    return {"ckpt": ckpt, "demo": "line", "seed": seed, "judge_rollouts": 8, "picks": 5, "seconds": 1.0,
+            "arms": {name: {"hypervolume": value, "prediction_mae_N": [0.05, 0.02, 0.02]}
+                     for name, value in arms.items()}}
+
+
+def test_the_report_tests_over_trained_models_with_one_mean_per_checkpoint():
+    from studies.robot_loop.report import paired, per_model, report
+
+    # checkpoint a: differences +0.1 and -0.3 (mean -0.1); b: +0.2 and +0.4 (mean +0.3)
+    cases = [_case("m/a.ckpt", 0, 0.6, 0.5), _case("m/a.ckpt", 1, 0.2, 0.5),
+             _case("m/b.ckpt", 2, 0.7, 0.5), _case("m/b.ckpt", 3, 0.9, 0.5)]
+    means = per_model(cases, "loop_gp_15", "one_shot_5")
+    assert means.keys() == {"a.ckpt", "b.ckpt"}
+    assert means["a.ckpt"] == pytest.approx(-0.1) and means["b.ckpt"] == pytest.approx(0.3)
+    by_model = paired(cases, "loop_gp_15", "one_shot_5", by_model=True)
+    assert (by_model["n"], by_model["wins"]) == (2, 1) and by_model["median_diff"] == pytest.approx(0.1)
+    assert paired(cases, "loop_gp_15", "one_shot_5")["n"] == 4
+    text = report(cases)
+    assert "Paired over trained models" in text and "| a.ckpt | -0.1000 |" in text
+    assert "not independent replicates" in text and "one checkpoint, so" not in text
