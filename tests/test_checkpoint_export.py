@@ -59,6 +59,22 @@ def test_export_is_slim_predicts_the_same_and_carries_its_card(run_dir: Path, tm
     assert card["dataset"]["plan_fingerprint"] and card["selected_on"]["checkpoint"] == "epoch000.ckpt"
 
 
+def test_a_moved_run_exports_its_selection_and_a_lost_one_is_an_error(
+        run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    # the last checkpoint differs from the selected one, so exporting the wrong one shows in the card
+    (run_dir / "checkpoints" / "last.ckpt").write_bytes((run_dir / "checkpoints" / "epoch000.ckpt").read_bytes())
+    moved = run_dir.rename(tmp_path / "moved")
+    out = tmp_path / "moved.ckpt"
+    assert main([str(moved), "--out", str(out)]) == 0
+    assert checkpoint_card(out)["exported_from"]["checkpoint"] == "epoch000.ckpt"
+
+    (moved / "checkpoints" / "epoch000.ckpt").unlink()
+    assert main([str(moved), "--out", str(tmp_path / "lost.ckpt")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "epoch000.ckpt" in err and "selected checkpoint" in err
+    assert not (tmp_path / "lost.ckpt").exists()
+
+
 def test_another_code_version_warns_naming_both(tiny_checkpoint: Path, tmp_path: Path) -> None:
     raw = torch.load(tiny_checkpoint, weights_only=True)
     raw[VERSION_KEY] = "0.0.1"

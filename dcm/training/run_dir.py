@@ -92,11 +92,17 @@ def run_finished(run_dir: Path) -> bool:
 
 
 def run_checkpoint(run_dir: Path) -> Path:
-    """The checkpoint a run selected (on its monitor), or its last one."""
-    if run_finished(run_dir):
-        best = read_summary(run_dir).get("best_checkpoint")
-        if best and Path(best).is_file():
-            return Path(best)
+    """The checkpoint a finished run selected (on its monitor); the last one of a run without a selection.
+
+    summary.json stores the selection's absolute path; a run directory that was moved or copied still holds it
+    under the same name. A selection that cannot be found is an error, never its last checkpoint instead.
+    """
+    if run_finished(run_dir) and (best := read_summary(run_dir).get("best_checkpoint")):
+        for candidate in (Path(best), checkpoint_dir(run_dir) / Path(best).name):
+            if candidate.is_file():
+                return candidate
+        raise FileNotFoundError(f"{run_dir}: {SUMMARY_FILE} names the selected checkpoint {best}, which is neither "
+                                f"there nor in {CHECKPOINT_DIR}/")
     last = last_checkpoint(run_dir)
     if not last.is_file():
         raise FileNotFoundError(f"{run_dir}: no {SUMMARY_FILE} best_checkpoint and no "
