@@ -145,7 +145,8 @@ def test_a_topic_without_messages_is_refused(tmp_path: Path) -> None:
 
     episode = tmp_path / "logs" / "episode_000"
     episode.mkdir(parents=True)
-    (episode / "meta.json").write_text('{"demo_id": 0, "bowl_in_base": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]], '
+    (episode / "meta.json").write_text('{"demo_id": 0, "split": "train", '
+                                       '"bowl_in_base": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]], '
                                        '"free_motion_s": [0, 1], "base_frame": "panda_link0"}')
     write_csv(episode / "demo.csv", ["t"] + ["v"] * 12, np.array([0.0, 1.0]), np.zeros((2, 12)))
     store = franka_typestore(False)

@@ -84,3 +84,25 @@ def test_same_seed_same_bytes(tmp_path: Path) -> None:
     files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
     assert len(files) == 12
     assert all((tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes() for f in files)
+
+
+def test_a_trial_that_diverged_in_the_simulator_is_imported_as_failed(tmp_path: Path) -> None:
+    """dcm-sim-logs records a diverged rollout as sim_failure; the import stores it as generation stores a failed
+    trial: kept with its reason and L_task = inf, out of the splits, so training skips it and a tuner sees NaN."""
+    import json
+
+    out = tmp_path / "logs"
+    assert main(["--trials", "4", "--duration-s", "2", "--out", str(out)]) == 0
+    meta_path = out / "episode_001" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    assert meta["split"] == "train" and "sim_failure" not in meta
+    meta["sim_failure"] = "step 12 (t = 0.60 s): tool left the bowl"
+    meta_path.write_text(json.dumps(meta))
+    import_logs(out, tmp_path / "observed.h5")
+    everything = load_dataset(tmp_path / "observed.h5", include_failed=True)
+    by_episode = {m["episode"]: m for m in everything.meta}
+    assert by_episode["episode_001"]["failed"] and not by_episode["episode_000"]["failed"]
+    assert by_episode["episode_001"]["failure_reason"] == "step 12 (t = 0.60 s): tool left the bowl"
+    assert by_episode["episode_001"]["L_task"] == float("inf")
+    train = load_dataset(tmp_path / "observed.h5", split="train")
+    assert [m["episode"] for m in train.meta] == ["episode_000"]

@@ -31,9 +31,9 @@ Its streams come from CSV/npz files or from one ROS bag in the directory (``*.ba
     Instead of ``<name>.csv`` a ``<name>.npz`` with arrays ``t`` (N,) and ``values`` (N, C) is accepted.
     Each stream carries its own timestamps [s] (any common clock, jitter and different rates are fine).
 
-    meta.json:
-        demo_id (int), trial (int), split ("train" | "valid" | "test"), skill (str, optional),
-        demo (DemoSpec dict, optional), base_frame (str, must be the same for every episode),
+    meta.json (a value of another type, shape or choice is refused, naming the file, key and value):
+        demo_id (int), trial (int, optional, default 0), split ("train" | "valid" | "test", required),
+        skill (str, optional), demo (DemoSpec dict, optional), base_frame (str, the same for every episode),
         bowl_in_base: 4x4 row-major pose of the bowl frame in the base frame (bowl frame = world axes, origin
                       at the lowest point of the bowl),
         free_motion_s: [t0, t1] a window (stream clock) without contact, whose mean wrench is the bias,
@@ -42,7 +42,9 @@ Its streams come from CSV/npz files or from one ROS bag in the directory (``*.ba
                       the stiffness frame K is assumed to coincide with the EE frame,
         nominal_rotation (optional): 3x3 row-major base-frame rotation of the "tool pointing straight down"
                       pose (default diag(1, -1, -1), Franka's usual downward flange),
-        proposal, round (optional): copied to the trajectory, so observations find the proposals they ran.
+        wrench_frame (optional): "base" (default) for O_F_ext_hat_K, "K" for K_F_ext_hat_K,
+        proposal, round (optional): copied to the trajectory, so observations find the proposals they ran,
+        sim_failure (optional): why a dcm-sim-logs trial diverged; the trial is imported as failed.
 
 Processing, in order: frame checks (rotation blocks orthonormal with det +1, last row [0,0,0,1], one base
 frame for all episodes); conversion to the bowl frame and to the contract's pose/wrench conventions (force
@@ -57,6 +59,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -169,9 +172,7 @@ def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, 
     masks: dict[str, list[str]] = {"train": [], "valid": [], "test": []}
     for index, traj in enumerate(trajectories):
         traj["name"] = f"traj_{index:06d}"
-        if traj["split"] not in masks:
-            raise LogFormatError(f"{log_dir / traj['episode']}/meta.json: split {traj['split']!r} unknown")
-        masks[traj["split"]].append(traj["name"])
+        masks[traj["split"]].append(traj["name"])  # load_meta admits only these splits
     attrs = {
         "control_hz": float(control_hz), "embodiment": "franka_real", "domain": {"name": "real"},
         "dataset": "real", "source": str(log_dir.resolve()),
@@ -188,6 +189,21 @@ def import_logs(log_dir: str | Path, out: str | Path, control_hz: float = 20.0, 
     return len(trajectories)
 
 
+def _option_problem(args: argparse.Namespace) -> str | None:
+    """What is wrong with the numeric options, or None: argparse takes any int or float, nan and inf too, and a
+    horizon or rate <= 0 would fail deep in processing with a traceback instead of naming the option."""
+    if args.horizon is not None and args.horizon < 1:
+        return f"--horizon {args.horizon}: must be at least 1 (or left out: the first episode's length)"
+    if args.lowpass_order < 1:
+        return f"--lowpass-order {args.lowpass_order}: must be at least 1"
+    if not (math.isfinite(args.control_hz) and args.control_hz > 0):
+        return f"--control-hz {args.control_hz}: must be a finite number > 0"
+    for option, value in (("--lowpass-hz", args.lowpass_hz), ("--contact-threshold-N", args.contact_threshold_N)):
+        if not (math.isfinite(value) and value >= 0):
+            return f"{option} {value}: must be a finite number >= 0"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dcm.data.import_logs",
                                      description="Import real Franka logs (format: see the module docstring).")
@@ -202,6 +218,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_topic_arguments(parser)
     args = parser.parse_args(argv)
     quiet_libraries()
+    problem = _option_problem(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 1
     if args.out.exists() and not args.overwrite:
         print(f"error: {args.out} exists; pass --overwrite to replace it, or choose another --out", file=sys.stderr)
         return 1

@@ -14,10 +14,15 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from dcm.cli import JSONFileError, load_json
+from dcm.cli import JSONFileError, check_integer, check_number, load_json
 
 NOMINAL_DOWN = np.diag([1.0, -1.0, -1.0])
-META_REQUIRED = ("demo_id", "bowl_in_base", "free_motion_s", "base_frame")
+META_REQUIRED = ("demo_id", "split", "bowl_in_base", "free_motion_s", "base_frame")
+SPLITS = ("train", "valid", "test")
+# "base": O_F_ext_hat_K (base-frame axes), "K": K_F_ext_hat_K (stiffness-frame axes).
+WRENCH_FRAMES = ("base", "K")
+# Numeric meta.json values and their shapes, checked once on reading so processing can trust them.
+META_ARRAYS = {"bowl_in_base": (4, 4), "free_motion_s": (2,), "tip_offset_m": (3,), "nominal_rotation": (3, 3)}
 # Passed from meta.json to the trajectory's attributes when present (a tuner matches observations to proposals).
 META_PASSED = ("proposal", "round")
 
@@ -41,7 +46,8 @@ class EpisodeStreams:
     ``pose`` and ``equilibrium`` are libfranka-style 4x4 base-frame poses flattened column-major (N, 16);
     ``wrench`` is ``O_F_ext_hat_K`` (or ``K_F_ext_hat_K`` with ``meta["wrench_frame"] == "K"``); ``stiffness``
     is the commanded diagonal stiffness in base axes; ``demo`` the reference in the dataset's conventions;
-    ``attractor`` an attractor already in the bowl frame (the CSV format's ``attractor.csv``).
+    ``attractor`` an attractor already in the bowl frame (the CSV format's ``attractor.csv``); ``meta`` as
+    :func:`load_meta` returns it (checked, so processing trusts its values).
     """
 
     name: str
@@ -85,14 +91,40 @@ def load_meta(episode: Path) -> tuple[dict[str, Any], str]:
     for key in META_REQUIRED:
         if key not in meta:
             raise LogFormatError(f"{meta_path}: missing key {key!r}")
+    check_meta(meta, str(meta_path))
     return meta, str(meta_path)
 
 
-def _matrix(value: Any, shape: tuple[int, int], where: str) -> np.ndarray:
-    array = np.asarray(value, dtype=np.float64)
-    if array.shape != shape:
-        raise LogFormatError(f"{where}: expected a {shape} matrix (row-major nested lists), got shape {array.shape}")
-    return array
+def check_meta(meta: dict[str, Any], where: str) -> None:
+    """Refuse a meta.json value of the wrong type, shape or choice, naming the field: a misspelt choice (a
+    ``wrench_frame`` of "k") would otherwise read as the default and give wrong forces without an error."""
+    check_integer(meta["demo_id"], f"{where}: demo_id", 0, LogFormatError)
+    if "trial" in meta:
+        check_integer(meta["trial"], f"{where}: trial", 0, LogFormatError)
+    for key, choices in (("split", SPLITS), ("wrench_frame", WRENCH_FRAMES)):
+        if key in meta and meta[key] not in choices:
+            raise LogFormatError(f"{where}: {key} = {meta[key]!r} must be one of {', '.join(map(repr, choices))}")
+    for key in ("base_frame", "sim_failure"):
+        if key in meta and not (isinstance(meta[key], str) and meta[key]):
+            raise LogFormatError(f"{where}: {key} = {meta[key]!r} must be a non-empty string")
+    if meta.get("demo") is not None and not isinstance(meta["demo"], dict):
+        raise LogFormatError(f"{where}: demo = {meta['demo']!r} must be a DemoSpec object {{...}}")
+    if "start_s" in meta:
+        check_number(meta["start_s"], f"{where}: start_s", LogFormatError)
+    for key, shape in META_ARRAYS.items():
+        if key in meta:
+            _check_numbers(meta[key], shape, f"{where}: {key}")
+
+
+def _check_numbers(value: Any, shape: tuple[int, ...], where: str) -> None:
+    """``value`` must be finite numbers of ``shape`` (matrices as row-major nested lists)."""
+    what = f"{shape[0]} numbers" if len(shape) == 1 else f"a {shape[0]}x{shape[1]} matrix (row-major nested lists)"
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.shape != shape or not np.all(np.isfinite(array)):
+        raise LogFormatError(f"{where} = {value!r} must be {what}, all finite")
 
 
 # ----------------------------------------------------------------------------------------------- geometry
@@ -152,9 +184,9 @@ class _Frames:
     """The bowl frame seen from the robot base, and the tool: converts base-frame EE poses to bowl-frame tip poses."""
 
     def __init__(self, meta: dict[str, Any], meta_where: str) -> None:
-        bowl_in_base = _matrix(meta["bowl_in_base"], (4, 4), f"{meta_where} bowl_in_base")
+        bowl_in_base = np.asarray(meta["bowl_in_base"], dtype=np.float64)
         check_transforms(bowl_in_base[None], f"{meta_where} bowl_in_base")
-        self.nominal = _matrix(meta.get("nominal_rotation", NOMINAL_DOWN), (3, 3), f"{meta_where} nominal_rotation")
+        self.nominal = np.asarray(meta.get("nominal_rotation", NOMINAL_DOWN), dtype=np.float64)
         self.tip_offset = np.asarray(meta.get("tip_offset_m", [0.0, 0.0, 0.0]), dtype=np.float64)
         self.base_to_bowl_R = bowl_in_base[:3, :3].T
         self.bowl_origin = bowl_in_base[:3, 3]
@@ -237,14 +269,16 @@ def process_episode(streams: EpisodeStreams, control_hz: float, horizon: int | N
     else:
         x_attr = attractor_from_demo(x_demo, F_demo, K, 1.0 / control_hz)
     contact = np.abs(F_obs[:, 2]) > contact_threshold_N
+    # A trial dcm-sim-logs saw diverge is failed as a generated one is: kept, out of the splits, L_task = inf.
+    failure = meta.get("sim_failure", "")
     traj = {
         "name": None,
         "x_demo": x_demo, "F_demo": F_demo, "x_attr": x_attr, "K": K, "x_obs": x_obs, "F_obs": F_obs,
         "contact": contact,
-        "L_task": float(task_loss(F_obs, F_demo)), "L_comp": float(compliance_loss(K)),
-        "failed": False, "failure_reason": "",
+        "L_task": float("inf") if failure else float(task_loss(F_obs, F_demo)), "L_comp": float(compliance_loss(K)),
+        "failed": bool(failure), "failure_reason": failure,
         "demo_id": int(meta["demo_id"]), "trial": int(meta.get("trial", 0)), "skill": str(meta.get("skill", "")),
-        "split": str(meta.get("split", "train")), "demo": meta.get("demo", {}),
+        "split": meta["split"], "demo": meta.get("demo", {}),
         "bowl": (meta.get("demo") or {}).get("bowl", {}), "embodiment": "franka_real", "domain": {"name": "real"},
         "seed": -1, "episode": streams.name, "base_frame": str(meta["base_frame"]), "bias_removed": bias.tolist(),
         "horizon": horizon,
