@@ -28,8 +28,9 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from dcm.cli import quiet_libraries, resolve_device
+from dcm.cli import one_line_warnings, quiet_libraries, resolve_device
 from dcm.control.objectives import task_loss, task_window_start
+from dcm.data.atomic import atomic_path, write_problem
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
 from dcm.data.schema import cond_slice, load_dataset
 from dcm.models.callbacks import evaluate_model
@@ -38,7 +39,7 @@ from dcm.models.dcm import DCM
 from dcm.models.force_model import ForceModel
 from dcm.models.metrics import REGRET_KEY, force_prediction_metrics, per_skill_ranking, ranking_metrics
 from dcm.models.predict import ForcePredictor, check_dataset, describe, load_model, predict_task_loss, with_prior
-from dcm.models.prior_blend import PriorBlend
+from dcm.models.prior_blend import PriorBlend, check_prior
 from dcm.models.references import COPY_DEMO, STIFFNESS_RIDGE, CopyDemo, StiffnessRegression, dataset_phases
 
 log = logging.getLogger("dcm.evaluate")
@@ -117,6 +118,7 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
     touch-down (:func:`dcm.control.objectives.task_window_start`). ``prior`` / ``prior_weight``: rank with the
     model's L_task blended with a stiffness ridge (:mod:`dcm.models.prior_blend`); force metrics are then left
     out, as the blend predicts L_task only."""
+    check_prior(prior, prior_weight)
     predictor = load_model(ckpt, map_location="cpu")
     if isinstance(predictor, ForceModel):
         predictor = predictor.to(resolve_device(device))
@@ -167,6 +169,20 @@ def evaluate(ckpt: str | Path, dataset: str | Path, split: str = "test", n_sampl
 CONFIG = Path(__file__).resolve().parent.parent / "conf" / "evaluate.yaml"
 
 
+def check_out(out: Any, inputs: dict[str, Any]) -> Path | None:
+    """The metrics file of ``out=`` (None: none), refused now if it could not be written once evaluated or
+    would replace one of the ``inputs`` (setting name -> path)."""
+    if out is None:
+        return None
+    path = Path(str(out))
+    if problem := write_problem(path):
+        raise ValueError(f"out={path} cannot be written: {problem}")
+    for key, value in inputs.items():
+        if value is not None and Path(str(value)).exists() and Path(str(value)).resolve() == path.resolve():
+            raise ValueError(f"out={path} is also {key}=; writing the metrics there would replace it")
+    return path
+
+
 def _fmt(value: Any) -> str:
     return f"{value:.3f}" if isinstance(value, float) else "-"
 
@@ -176,6 +192,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     returns the metrics. Warnings go to stderr."""
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     quiet_libraries()
+    one_line_warnings()
     args = sys.argv[1:] if argv is None else argv
     if any(a in ("-h", "--help") for a in args):
         print(__doc__ + "\n" + CONFIG.read_text())
@@ -189,6 +206,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if unknown or missing:
         raise SystemExit(f"error: unknown keys {unknown} / missing keys {missing}; see python -m dcm.evaluate --help")
     try:
+        out = check_out(cfg.out, {key: cfg[key] for key in ("ckpt", "dataset", "reference", "prior")})
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
                           seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference,
                           sampler=cfg.sampler, sampling_steps=cfg.sampling_steps, task_loss=cfg.task_loss,
@@ -205,10 +223,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print(row_format % (name, _fmt(row.get("R_within")), interval, _fmt(row.get("R_within_spearman")),
                             _fmt(row.get(REGRET_KEY)), _fmt(row.get("R_pooled")), _fmt(row.get("L_task_mae_N")),
                             _fmt(row.get("force_rmse_N"))))
-    if cfg.out is not None:
-        out = Path(str(cfg.out))
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+    if out is not None:
+        try:
+            with atomic_path(out) as tmp:  # an old metrics file stays whole if this fails
+                tmp.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+        except OSError as err:  # checked before evaluating, but a disk can fill up meanwhile
+            raise SystemExit(f"error: out={out}: cannot write the metrics: {err}") from None
         print(f"wrote {out}")
     return result
 

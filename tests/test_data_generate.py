@@ -74,6 +74,35 @@ def test_shards_merge_to_the_full_dataset(tiny_dataset_path: Path, tmp_path: Pat
                                load_dataset(tiny_dataset_path).stats["F_obs"]["mean"])
 
 
+def test_merge_refuses_an_existing_output_unless_told_to_overwrite(
+        tiny_dataset_path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An existing output (or a shard taken for it, when the output was left out) is named in one line and
+    left as it was; --overwrite replaces it; the shards are never written."""
+    from dcm.data.merge import main as merge_main
+
+    shards = [str(generate(compose_config("tiny", [f"out={tmp_path / 'tiny.h5'}", "workers=1", "progress=false",
+                                                   "shard.count=2", f"shard.index={i}"]))) for i in (0, 1)]
+    shard_bytes = [Path(s).read_bytes() for s in shards]
+    out = tmp_path / "merged.h5"
+    out.write_text("an earlier dataset")
+    assert merge_main([str(out), *shards]) == 1
+    err = capsys.readouterr().err
+    assert err == f"error: merge failed: {out} exists; pass --overwrite to replace it, or choose another output\n"
+    assert out.read_text() == "an earlier dataset"
+    assert merge_main(shards) == 1  # the output left out: shard 0 would have been replaced
+    assert f"{shards[0]} exists; pass --overwrite" in capsys.readouterr().err
+    assert merge_main(["--overwrite", shards[0], *shards]) == 1
+    assert f"{shards[0]} is both the output and a shard" in capsys.readouterr().err
+    assert merge_main([str(tmp_path), *shards]) == 1
+    assert capsys.readouterr().err == f"error: merge failed: cannot write {tmp_path}: {tmp_path} is a directory\n"
+    (tmp_path / "a_file").write_text("")
+    assert merge_main([str(tmp_path / "a_file" / "merged.h5"), *shards]) == 1
+    assert "is not a writable directory" in capsys.readouterr().err
+    assert merge_main(["--overwrite", str(out), *shards]) == 0
+    assert_same_data(out, tiny_dataset_path)
+    assert [Path(s).read_bytes() for s in shards] == shard_bytes
+
+
 def test_valid_split_alone_is_the_full_runs_valid_split(tiny_dataset_path: Path, tmp_path: Path) -> None:
     out = generate(compose_config("tiny", [f"out={tmp_path / 'valid.h5'}", "workers=1", "progress=false",
                                            "splits=[valid]"]))

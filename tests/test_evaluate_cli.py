@@ -45,3 +45,53 @@ def test_library_chatter_is_hushed(synthetic: Path, capsys: pytest.CaptureFixtur
         logging.getLogger(name).setLevel(logging.NOTSET)
     evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test"])
     assert all(logging.getLogger(name).level == logging.WARNING for name in QUIET_LOGGERS)
+
+
+def test_an_out_that_cannot_be_written_is_refused_before_evaluating(
+        synthetic: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A directory, a path under a file or an input as out= ends in one line naming out= and the path, before the
+    evaluation (which would then be lost) starts; the input is left whole."""
+    import dcm.evaluate
+
+    def no_evaluation(*args, **kwargs):
+        raise AssertionError("evaluated before checking out=")
+
+    monkeypatch.setattr(dcm.evaluate, "evaluate", no_evaluation)
+    (tmp_path / "a_file").write_text("")
+    dataset = synthetic.read_bytes()
+    for out, message in [(tmp_path, f"error: out={tmp_path} cannot be written: {tmp_path} is a directory"),
+                         (tmp_path / "a_file" / "m.json",
+                          f"error: out={tmp_path / 'a_file' / 'm.json'} cannot be written: {tmp_path / 'a_file'} is "
+                          "not a writable directory"),
+                         (synthetic, f"error: out={synthetic} is also dataset=; writing the metrics there would "
+                                     "replace it")]:
+        with pytest.raises(SystemExit) as exit_info:
+            evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test", f"out={out}"])
+        assert str(exit_info.value) == message
+    assert synthetic.read_bytes() == dataset
+
+
+def test_a_failed_write_of_the_metrics_is_one_line(synthetic: Path, tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    import contextlib
+
+    import dcm.evaluate
+
+    @contextlib.contextmanager
+    def full_disk(target):
+        raise OSError(28, "No space left on device")
+        yield target
+
+    monkeypatch.setattr(dcm.evaluate, "atomic_path", full_disk)
+    out = tmp_path / "metrics.json"
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test", f"out={out}"])
+    assert str(exit_info.value) == f"error: out={out}: cannot write the metrics: [Errno 28] No space left on device"
+
+
+def test_a_prior_weight_without_a_prior_is_refused(synthetic: Path) -> None:
+    """It would rank with the model alone while the blend was asked for."""
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test", "prior_weight=0.5"])
+    assert str(exit_info.value) == ("error: prior_weight = 0.5 needs prior=<stiffness reference JSON> to blend with; "
+                                    "without it the model ranks alone (prior_weight=0)")

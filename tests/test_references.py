@@ -196,11 +196,13 @@ def test_a_prior_blend_ranks_between_the_model_and_the_ridge(baseline_ckpt: Path
     """L = L_model^(1-w) L_ridge^w: w = 0 is the model's ranking, w = 1 the ridge's; a bad weight or a prior
     that is not a ridge is named."""
     from dcm.models.predict import with_prior
+    from dcm.models.prior_blend import PriorWeightWarning
 
     ref = references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "ref.json")])
     alone = evaluate(baseline_ckpt, tiny_dataset_path, split="all")
     ridge = evaluate(ref, tiny_dataset_path, split="all")
-    model_only = evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=ref, prior_weight=0.0)
+    with pytest.warns(PriorWeightWarning, match=f"prior = {ref} at prior_weight = 0 ranks with the model alone"):
+        model_only = evaluate(baseline_ckpt, tiny_dataset_path, split="all", prior=ref, prior_weight=0.0)
     assert model_only["R_within"] == pytest.approx(alone["R_within"], abs=1e-12)
     assert model_only["prior_weight"] == 0.0 and model_only["prior"] == str(ref) and model_only["model"] == "baseline"
     assert "force_rmse_N" not in model_only and "stiffness_ridge" in model_only["references"]

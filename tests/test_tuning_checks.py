@@ -73,11 +73,21 @@ def test_the_default_settings_pass():
     (["overwrite=yes"], "overwrite = 'yes' must be true or false"),
     (["control_hz=1000"], "control_hz = 1000 is outside [1, 500] Hz"),
     (["search=random", "+search.options.n_startup_trials=3", "robot_based.n_trials=2"], "search=random with options"),
+    (["prior_weight=0.7"], "prior_weight = 0.7 needs prior=<stiffness reference JSON> to blend with"),
+    (["prior=ridge.json", "prior_weight=1.5"], "prior_weight = 1.5 must be a number in [0, 1]"),
 ])
 def test_each_bad_setting_is_one_line_naming_it(overrides, message):
     with pytest.raises(ValueError) as err:
         check_config(_cfg(*overrides))
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_prior_at_weight_zero_warns_that_the_model_ranks_alone():
+    """A weight sweep's w = 0 point asks for just that, so it is not refused."""
+    from dcm.models.prior_blend import PriorWeightWarning
+
+    with pytest.warns(PriorWeightWarning, match="prior = ridge.json at prior_weight = 0 ranks with the model alone"):
+        check_config(_cfg("prior=ridge.json"))
 
 
 def test_zero_robot_trials_skip_rather_than_fail_and_a_reachable_reference_point_passes():

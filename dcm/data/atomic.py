@@ -16,6 +16,20 @@ def _umask() -> int:
     return mask
 
 
+def write_problem(target: str | os.PathLike) -> str | None:
+    """Why :func:`atomic_path` could not write ``target`` (None: it could), for a check before long work, so the
+    work is not lost at the end. It needs ``target`` not to be a directory and its nearest existing folder to be
+    a writable directory (the missing rest is created)."""
+    path = Path(target)
+    if path.is_dir():
+        return f"{path} is a directory"
+    folder = path.absolute().parent
+    existing = next(p for p in (folder, *folder.parents) if p.exists())
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        return f"{existing} is not a writable directory"
+    return None
+
+
 @contextmanager
 def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``target``; when the block succeeds, fsync it and rename it onto

@@ -7,6 +7,9 @@ file is assembled from the parts in demo order, so it does not depend on worker 
 Shards (``shard.index=i shard.count=n``) each write ``<out stem>.shard-<i>-of-<n>.h5``; join them with::
 
     python -m dcm.data.merge data/sim.h5 data/sim.shard-*-of-4.h5
+
+An existing output is refused unless ``--overwrite`` is given, as ``dcm-generate`` and ``dcm-import-logs`` do:
+a mistyped command (the output left out, so the first shard is taken for it) must not replace a dataset.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from typing import Any, Sequence
 import h5py
 import numpy as np
 
-from dcm.data.atomic import atomic_path
+from dcm.data.atomic import atomic_path, write_problem
 
 from dcm.data.schema import FIELDS, SCALARS, SPLITS, TRAJ_NAME_FORMAT, DatasetError, _decode_attr, read_root_attrs, \
     write_dataset
@@ -129,12 +132,26 @@ def _read_file_trajectories(path: Path) -> tuple[list[dict[str, Any]], dict[str,
     return trajectories, masks
 
 
-def merge_shards(out: str | Path, shard_paths: Sequence[str | Path]) -> int:
-    """Join shard files of one generation plan into one dataset (stats recomputed over the whole train split)."""
+def check_output(out: Path, shard_paths: Sequence[Path], overwrite: bool) -> None:
+    """Refuse an ``out`` that exists (without ``overwrite``), is a directory, is one of the shards or cannot be
+    written, before any shard is read."""
+    if problem := write_problem(out):
+        raise MergeError(f"cannot write {out}: {problem}")
+    if any(out.resolve() == p.resolve() for p in shard_paths):
+        raise MergeError(f"{out} is both the output and a shard; choose another output")
+    if out.exists() and not overwrite:
+        raise MergeError(f"{out} exists; pass --overwrite to replace it, or choose another output")
+
+
+def merge_shards(out: str | Path, shard_paths: Sequence[str | Path], overwrite: bool = False) -> int:
+    """Join shard files of one generation plan into one dataset (stats recomputed over the whole train split).
+
+    An existing ``out`` is replaced only with ``overwrite``; the shards are only read."""
     out = Path(out)
     shard_paths = [Path(p) for p in shard_paths]
     if not shard_paths:
         raise MergeError("no shard files given")
+    check_output(out, shard_paths, overwrite)
     roots = [read_root_attrs(p) for p in shard_paths]
     plans = {r.get("plan_fingerprint") for r in roots}
     if len(plans) != 1:
@@ -179,11 +196,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dcm.data.merge", description=__doc__.split("\n")[0])
     parser.add_argument("out", help="merged dataset to write (atomically)")
     parser.add_argument("shards", nargs="+", help="shard files written with shard.index=i shard.count=n")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     args = parser.parse_args(argv)
     try:
-        n = merge_shards(args.out, args.shards)
+        n = merge_shards(args.out, args.shards, overwrite=args.overwrite)
     except (MergeError, DatasetError) as err:
-        print(f"merge failed: {err}", file=sys.stderr)
+        print(f"error: merge failed: {err}", file=sys.stderr)
+        return 1
+    except OSError as err:  # the output's directory cannot be created or written
+        print(f"error: merge failed: cannot write {args.out}: {err}", file=sys.stderr)
         return 1
     print(f"wrote {args.out}: {n} trajectories from {len(args.shards)} shards")
     return 0

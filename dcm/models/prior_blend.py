@@ -14,6 +14,7 @@ the ridge. Choose ``w`` on a validation split (``python -m studies.model_study.m
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -33,6 +34,27 @@ def check_weight(weight: Any) -> float:
     if not 0.0 <= value <= 1.0:  # also refuses NaN
         raise ModelInputError(f"prior_weight = {weight!r} must be a number in [0, 1] (0: the model alone, 1: the "
                               "stiffness prior alone)")
+    return value
+
+
+class PriorWeightWarning(UserWarning):
+    """A prior given at ``prior_weight = 0``: the blend ranks with the model alone."""
+
+
+def check_prior(prior: Any, weight: Any) -> float:
+    """``prior_weight`` checked (:func:`check_weight`) together with ``prior``, before any model is loaded.
+
+    A weight without a prior is refused: the run would rank with the model alone while the user asked for a
+    blend. A prior at weight 0 is the model alone too, but that is the w = 0 point of a weight sweep, so it
+    only warns (:class:`PriorWeightWarning`)."""
+    value = check_weight(weight)
+    given = prior is not None and str(prior) != ""
+    if value > 0.0 and not given:
+        raise ModelInputError(f"prior_weight = {weight} needs prior=<stiffness reference JSON> to blend with; "
+                              "without it the model ranks alone (prior_weight=0)")
+    if given and value == 0.0:
+        warnings.warn(f"prior = {prior} at prior_weight = 0 ranks with the model alone; set prior_weight in "
+                      "(0, 1] to blend it in", PriorWeightWarning, stacklevel=2)
     return value
 
 

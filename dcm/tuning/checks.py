@@ -186,6 +186,13 @@ def check_config(cfg: Any) -> CheckedConfig:
     else:
         spec = DemoSpec.from_dict(to_container(cfg.demo), where="tune.demo")
     _number(cfg.get("task_from_s", 0.0), "task_from_s")
+    if cfg.get("prior") or cfg.get("prior_weight"):  # imported only then: the defaults are checked without torch
+        from dcm.models.prior_blend import check_prior
+
+        try:
+            check_prior(cfg.get("prior"), cfg.get("prior_weight", 0.0))
+        except ValueError as err:
+            raise TuneConfigError(str(err)) from None
     horizon = spec.horizon(cfg.control_hz)  # a path leaving the bowl is named by the spec's own error
     try:
         task_window_start(cfg.get("task_from_s", 0.0), cfg.control_hz, horizon)
