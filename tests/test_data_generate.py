@@ -104,14 +104,15 @@ def test_merge_refuses_an_existing_output_unless_told_to_overwrite(
 
 
 def test_valid_split_alone_is_the_full_runs_valid_split(tiny_dataset_path: Path, tmp_path: Path) -> None:
+    # one name without brackets is that split (it was taken letter by letter)
     out = generate(compose_config("tiny", [f"out={tmp_path / 'valid.h5'}", "workers=1", "progress=false",
-                                           "splits=[valid]"]))
+                                           "splits=valid"]))
     alone, full = load_dataset(out, split="valid"), load_dataset(tiny_dataset_path, split="valid")
     assert len(alone) == len(full) == len(load_dataset(out)) == 3
     for field in FIELDS:
         np.testing.assert_array_equal(alone.arrays[field], full.arrays[field], err_msg=field)
     with pytest.raises(GenerationError, match=r"splits=\['val'\]: unknown split"):
-        generate(compose_config("tiny", [f"out={tmp_path / 'v.h5'}", "splits=[val]"]))
+        generate(compose_config("tiny", [f"out={tmp_path / 'v.h5'}", "splits=val"]))
 
 
 def _run(args: list[str], **kwargs) -> subprocess.Popen:

@@ -62,6 +62,13 @@ def output_paths(cfg: Any) -> tuple[Path, Path]:
     return out, work_dir
 
 
+def _names(value: Any) -> list[str] | None:
+    """``skills=`` / ``splits=`` as a list: one name alone (``skills=spiral``) is that name, not its letters."""
+    if value is None:
+        return None
+    return [value] if isinstance(value, str) else [str(v) for v in value]
+
+
 def generate(cfg: Any) -> Path:
     """Generate (or finish generating) the dataset described by a composed ``conf/generate.yaml``.
 
@@ -81,8 +88,7 @@ def generate(cfg: Any) -> Path:
     DomainSpec.resolve(settings["domain"])  # validate before spawning workers
     dataset_cfg = OmegaConf.to_container(cfg.dataset, resolve=True)
     demo_cfg = OmegaConf.to_container(cfg.demo, resolve=True)
-    only_skills = list(cfg.skills) if cfg.get("skills") is not None else None
-    only_splits = list(cfg.splits) if cfg.get("splits") is not None else None
+    only_skills, only_splits = _names(cfg.get("skills")), _names(cfg.get("splits"))
     try:
         all_jobs = plan_demos(dataset_cfg, int(cfg.seed), cfg.n_trials,
                               demo_cfg if demo_cfg.get("waypoints") else None, only_skills, only_splits)
