@@ -232,8 +232,11 @@ def test_task_loss_option_counts_the_spread_of_a_dcms_samples() -> None:
     from dcm.models.callbacks import evaluate_model
 
     data = TrajectoryDataset(cond.numpy(), cond[..., 6:12].numpy(), [f"t{i}" for i in range(6)], np.zeros(6))
-    _, arrays = evaluate_model(model, data, n_samples=2)
+    metrics, arrays = evaluate_model(model, data, n_samples=2, skills=np.repeat([0, 1], 3))
     np.testing.assert_allclose(arrays["L_task_pred"], 1.0, atol=1e-4)
+    from dcm.models.callbacks import metric_names
+
+    assert sorted(metrics) == metric_names()  # what train.py checks checkpoint.monitor against
     Baseline(net=dict(TINY_NET)).set_task_loss("over_samples")  # accepted: with no spread both are the same
     with pytest.raises(ModelInputError, match="task_loss must be one of"):
         model.set_task_loss("median")

@@ -115,10 +115,29 @@ def test_bad_invocations_fail_with_clear_messages(sweep: Path, tiny_dataset_path
     assert proc.returncode != 0 and "needs init_from" in proc.stderr
     proc = _run([str(REPO / "train.py"), "model=baseline", f"init_from={ckpt}", *common], cwd=tmp_path, check=False)
     assert proc.returncode != 0 and "holds a 'dcm' model" in proc.stderr
+    proc = _run([str(REPO / "train.py"), "checkpoint.monitor=val/R_wthin", *common], cwd=tmp_path, check=False)
+    assert proc.returncode != 0 and proc.stderr.strip().splitlines()[-1].startswith(
+        "error: checkpoint.monitor=val/R_wthin: not a logged metric; one of ")
+    assert not (tmp_path / "bad" / "checkpoints").exists()  # refused before training, not at the first validation
     from dcm.evaluate import main as evaluate_main
 
     with pytest.raises(SystemExit, match="no split 'nosuch'"):
         evaluate_main([f"ckpt={ckpt}", f"dataset={tiny_dataset_path}", "split=nosuch"])
+
+
+def test_the_monitor_and_mode_are_checked_against_what_is_logged() -> None:
+    from dcm.training.checks import TrainConfigError
+    from dcm.training.train import check_monitor
+
+    check_monitor({"monitor": "val/R_within", "mode": "max"}, task_term=False)
+    check_monitor({"monitor": "val/force_rmse_N", "mode": "min"}, task_term=False)
+    check_monitor({"monitor": "train/loss_epoch", "mode": "min"}, task_term=False)
+    check_monitor({"monitor": "val/loss_task", "mode": "min"}, task_term=True)
+    with pytest.raises(TrainConfigError, match=r"^checkpoint.monitor=val/loss_task: not a logged metric; one of .*"
+                                               r"val/R_within, .*val/loss$"):
+        check_monitor({"monitor": "val/loss_task", "mode": "min"}, task_term=False)
+    with pytest.raises(TrainConfigError, match=r"^checkpoint.mode=maximum: must be min or max$"):
+        check_monitor({"monitor": "val/R_within", "mode": "maximum"}, task_term=False)
 
 
 def test_the_within_skill_task_term_trains_from_the_cli(tiny_dataset_path: Path, tmp_path: Path) -> None:

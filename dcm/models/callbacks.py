@@ -65,10 +65,23 @@ def evaluate_model(model: Any, dataset: TrajectoryDataset, n_samples: int | None
                                        F_demo[:, window].double()).cpu().numpy()
     scores, L_pred, L_true = force_prediction_metrics(*(arrays[k][:, window] for k in ("pred_N", "true_N", "F_demo_N")),
                                                       skills, L_pred=L_pred)
-    metrics: dict[str, float] = {"L_MSE": float(mse.compute()), "R": scores["R_pooled"], **scores,
-                                 "mean_std_N": float(std[..., :3].mean())}
+    metrics = _with_model_metrics(scores, float(mse.compute()), float(std[..., :3].mean()))
     arrays.update(L_task_pred=L_pred, L_task_true=L_true)
     return metrics, arrays
+
+
+def _with_model_metrics(scores: dict[str, float], l_mse: float, mean_std_N: float) -> dict[str, float]:
+    """The force-prediction scores plus what only a model has: its normalised MSE and its samples' spread."""
+    return {"L_MSE": l_mse, "R": scores["R_pooled"], **scores, "mean_std_N": mean_std_N}
+
+
+def metric_names() -> list[str]:
+    """The metric names :class:`ForceMetricsCallback` logs (as ``val/<name>`` and ``test/<name>``), from the
+    metric code itself on a made-up split, so a ``checkpoint.monitor`` can be checked before training instead
+    of failing at the first validation."""
+    forces = np.random.default_rng(0).normal(size=(4, 2, len(WRENCH_AXES)))
+    scores, _, _ = force_prediction_metrics(forces, forces + 1.0, forces, np.array([0, 0, 1, 1]))
+    return sorted(_with_model_metrics(scores, 0.0, 0.0))
 
 
 def force_figure(arrays: dict[str, np.ndarray], names: list[str], n_plot: int = 3, dt: float | None = None):

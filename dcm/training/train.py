@@ -32,7 +32,7 @@ from dcm.cli import check_accelerator, config_diff
 from dcm.data.datamodule import DCMDataModule
 from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
-from dcm.models.callbacks import ForceMetricsCallback, RandomStateCallback, RunETACallback
+from dcm.models.callbacks import ForceMetricsCallback, RandomStateCallback, RunETACallback, metric_names
 from dcm.models.checkpoint import checkpoint_kind, read_checkpoint
 from dcm.models.configuration import CheckpointKindError
 from dcm.models.dcm import DCM
@@ -196,6 +196,19 @@ def checkpoint_filename(checkpoint_cfg: Mapping[str, Any]) -> str:
     return str(given)
 
 
+def check_monitor(checkpoint_cfg: Mapping[str, Any], task_term: bool) -> None:
+    """Refuse a ``checkpoint.monitor`` no callback logs, or a ``checkpoint.mode`` that is not min/max, before
+    training: Lightning finds either only at the first validation, epochs later, with a traceback."""
+    mode = checkpoint_cfg.get("mode")
+    if mode not in ("min", "max"):
+        raise TrainConfigError(f"checkpoint.mode={mode}: must be min or max")
+    monitor = str(checkpoint_cfg["monitor"])
+    losses = ("loss", "loss_force", "loss_task") if task_term else ("loss",)
+    logged = [f"val/{name}" for name in (*metric_names(), *losses)]
+    if monitor not in logged and not monitor.startswith("train/loss"):
+        raise TrainConfigError(f"checkpoint.monitor={monitor}: not a logged metric; one of {', '.join(logged)}")
+
+
 class SelectionCheckpoint(ModelCheckpoint):
     """Top-k checkpoints on the monitor, where a validation whose monitor is undefined (NaN) is no candidate.
 
@@ -228,6 +241,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if resuming:
         read_checkpoint(last)  # plain data only: a file that would run code is refused here, in one line
     filename = checkpoint_filename(cfg.checkpoint)
+    check_monitor(cfg.checkpoint, task_term=float(cfg.model.get("task_weight") or 0.0) > 0)
     run_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(int(cfg.seed), workers=True)
 
