@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -318,3 +319,11 @@ def test_tiny_diverse_dataset(tmp_path: Path) -> None:
     assert len(test) == 6 and test.horizon == 40
     curve = next(m for m in load_dataset(out, split="train").meta if m["skill"] == "curve")["demo"]
     assert curve["family"] == "curve" and curve["params"]["press_range_m"] == [0.005, 0.02]
+
+
+def test_an_out_that_cannot_be_written_is_refused_before_generating(tmp_path: Path) -> None:
+    (tmp_path / "a_file").write_text("")
+    out = tmp_path / "a_file" / "x.h5"
+    with pytest.raises(GenerationError, match=rf"^out={re.escape(str(out))} cannot be written: "
+                                              rf"{re.escape(str(tmp_path / 'a_file'))} is not a writable directory"):
+        generate(compose_config("tiny", [f"out={out}", "workers=1", "progress=false"]))

@@ -62,7 +62,7 @@ def test_an_out_that_cannot_be_written_is_refused_before_evaluating(
     for out, message in [(tmp_path, f"error: out={tmp_path} cannot be written: {tmp_path} is a directory"),
                          (tmp_path / "a_file" / "m.json",
                           f"error: out={tmp_path / 'a_file' / 'm.json'} cannot be written: {tmp_path / 'a_file'} is "
-                          "not a writable directory"),
+                          "not a writable directory (File exists)"),
                          (synthetic, f"error: out={synthetic} is also dataset=; writing the metrics there would "
                                      "replace it")]:
         with pytest.raises(SystemExit) as exit_info:

@@ -230,3 +230,10 @@ def test_fit_hushes_library_chatter(tmp_path: Path) -> None:
         logging.getLogger(name).setLevel(logging.NOTSET)
     references_main(["fit", "--dataset", str(data), "--out", str(tmp_path / "ref.json"), "--n-phases", "2"])
     assert all(logging.getLogger(name).level == logging.WARNING for name in QUIET_LOGGERS)
+
+
+def test_fit_refuses_an_out_it_cannot_write_before_fitting(tiny_dataset_path: Path, tmp_path: Path) -> None:
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(SystemExit, match=r"^error: --out .*a_file/r.json cannot be written: .*a_file is not a "
+                                         r"writable directory"):
+        references_main(["fit", "--dataset", str(tiny_dataset_path), "--out", str(tmp_path / "a_file" / "r.json")])

@@ -18,15 +18,17 @@ def _umask() -> int:
 
 def write_problem(target: str | os.PathLike) -> str | None:
     """Why :func:`atomic_path` could not write ``target`` (None: it could), for a check before long work, so the
-    work is not lost at the end. It needs ``target`` not to be a directory and its nearest existing folder to be
-    a writable directory (the missing rest is created)."""
+    work is not lost at the end. Creates ``target``'s folder, as the write would, and a file in it that is gone
+    at once: permissions alone do not tell (a read-only file system, or root)."""
     path = Path(target)
     if path.is_dir():
         return f"{path} is a directory"
-    folder = path.absolute().parent
-    existing = next(p for p in (folder, *folder.parents) if p.exists())
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        return f"{existing} is not a writable directory"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as err:
+        return f"{path.parent} is not a writable directory ({err.strerror or err})"
     return None
 
 

@@ -13,6 +13,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from dcm.cli import check_integer, check_number, config_diff
+from dcm.data.atomic import write_problem
 from dcm.data.presets import DemoJob
 from dcm.data.schema import DatasetError, read_config, read_root_attrs
 from dcm.search import StiffnessSearch, make_search, space_from_settings
@@ -186,6 +187,8 @@ def existing_output_is_current(out: Path, plan: str, config: dict[str, Any], n_t
 
     Refuses any other existing file (naming what differs) unless ``overwrite``; the new file then replaces
     it atomically at the end, so the old one stays usable until then."""
+    if problem := write_problem(out):
+        raise GenerationError(f"out={out} cannot be written: {problem}")
     if not out.exists():
         return False
     try:

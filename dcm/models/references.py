@@ -32,6 +32,7 @@ from scipy import linalg
 
 from dcm.cli import quiet_libraries
 from dcm.control.objectives import task_loss, task_window_start
+from dcm.data.atomic import write_problem
 from dcm.data.recording import stored_recording
 from dcm.models.configuration import ModelInputError
 from dcm.models.metrics import within_skill_correlation
@@ -353,6 +354,8 @@ def main(argv: list[str] | None = None) -> Path:
                      help="learn the L_task of the force from this time [s] on (1.0: without the approach)")
     args = parser.parse_args(argv)
     quiet_libraries()
+    if problem := write_problem(args.out):
+        raise SystemExit(f"error: --out {args.out} cannot be written: {problem}")
     try:
         model = StiffnessRegression.fit_dataset(args.dataset, args.split, args.alpha, args.n_phases,
                                                 task_from_s=args.task_from_s)
