@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from dcm.cli import one_line_warnings, quiet_libraries, resolve_device
+from dcm.cli import check_integer, check_number, one_line_warnings, quiet_libraries, resolve_device
 from dcm.control.objectives import task_loss, task_window_start
 from dcm.data.atomic import atomic_path, write_problem
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
@@ -208,9 +208,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     try:
         out = check_out(cfg.out, {key: cfg[key] for key in ("ckpt", "dataset", "reference", "prior")})
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
-                          seed=int(cfg.seed), device=str(cfg.device), reference=cfg.reference,
+                          seed=check_integer(cfg.seed, "seed", 0), device=str(cfg.device), reference=cfg.reference,
                           sampler=cfg.sampler, sampling_steps=cfg.sampling_steps, task_loss=cfg.task_loss,
-                          task_from_s=float(cfg.task_from_s), prior=cfg.prior, prior_weight=cfg.prior_weight)
+                          task_from_s=check_number(cfg.task_from_s, "task_from_s"), prior=cfg.prior,
+                          prior_weight=cfg.prior_weight)
     except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
         raise SystemExit(f"error: {err}") from None
     rows = {result["model"]: result, **result.get("references", {})}

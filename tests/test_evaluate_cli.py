@@ -95,3 +95,12 @@ def test_a_prior_weight_without_a_prior_is_refused(synthetic: Path) -> None:
         evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test", "prior_weight=0.5"])
     assert str(exit_info.value) == ("error: prior_weight = 0.5 needs prior=<stiffness reference JSON> to blend with; "
                                     "without it the model ranks alone (prior_weight=0)")
+
+
+@pytest.mark.parametrize(("setting", "message"), [("seed=abc", "seed = 'abc' must be an integer >= 0"),
+                                                  ("seed=-1", "seed = -1 must be an integer >= 0"),
+                                                  ("task_from_s=abc", "task_from_s = 'abc' must be a finite number")])
+def test_a_bad_number_is_one_line_naming_its_key(synthetic: Path, setting: str, message: str) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test", setting])
+    assert str(exit_info.value) == f"error: {message}"

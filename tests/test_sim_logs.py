@@ -60,6 +60,8 @@ def test_bad_rounds_and_outputs_are_refused_in_one_line(tmp_path: Path, capsys: 
     out = tmp_path / "logs"
     assert main(["--schedules", str(round_dir), "--trials", "3", "--out", str(out)]) == 1
     assert "drop --trials" in capsys.readouterr().err
+    assert main(["--seed", "-1", "--out", str(out)]) == 1
+    assert capsys.readouterr().err == "error: --seed -1: must be an integer >= 0\n"
     rows = (round_dir / "p0.csv").read_text().splitlines()
     shifted = np.array([r.split(",") for r in rows[1:]], dtype=float)
     shifted[20:, 1] += 0.005  # another demo's attractor from step 20 on

@@ -257,6 +257,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     given = [flag for flag, value, default in (("--demo", args.demo, "wavelike"), ("--trials", args.trials, 5),
                                                ("--duration-s", args.duration_s, None),
                                                ("--embodiment", args.embodiment, "tool")) if value != default]
+    if args.seed < 0:
+        print(f"error: --seed {args.seed}: must be an integer >= 0", file=sys.stderr)
+        return 1
     if args.schedules is not None and given:
         print(f"error: --schedules takes the demo, embodiment and schedules from round.yaml; drop {', '.join(given)}",
               file=sys.stderr)
