@@ -39,13 +39,7 @@ from dcm.models.dcm import DCM
 from dcm.models.force_model import ForceModel
 from dcm.models.nets import get_score_net_class
 from dcm.training import run_dir as rd
-from dcm.training.checks import (
-    TrainConfigError,
-    check_data_argument,
-    check_dataset_overrides,
-    check_resume_argument,
-    check_resume_dir,
-)
+from dcm.training.checks import TrainConfigError, check_resume_dir
 
 log = logging.getLogger(__name__)
 
@@ -431,7 +425,6 @@ def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
 
 
 __all__ = ["FINETUNE_FIELDS", "USER_ERRORS", "SelectionCheckpoint", "TrainConfigError", "build_datamodule",
-           "build_model", "check_data_argument", "check_dataset_overrides", "check_resume_argument",
-           "check_resume_dir", "check_task_batches", "checkpoint_filename", "closing_summary", "config_search_path",
-           "dataset_path", "init_checkpoint", "new_model", "option_defaults", "planned_config", "preset_path",
-           "resolve_resume", "reuse_run", "train", "with_added_option_defaults", "with_dataset_group"]
+           "build_model", "check_monitor", "check_task_batches", "checkpoint_filename", "closing_summary",
+           "config_search_path", "dataset_path", "init_checkpoint", "new_model", "option_defaults", "planned_config",
+           "preset_path", "resolve_resume", "reuse_run", "train", "with_added_option_defaults", "with_dataset_group"]
