@@ -1,5 +1,7 @@
 """Helpers shared by the command-line entry points, so that a user's mistake ends in one clear line.
 
+* :func:`error_line` / :func:`print_error` state a user error as the one ``error: ...`` line every command ends
+  with, whatever line breaks the message holds;
 * :func:`resolve_device` turns a ``device=`` setting into a ``torch.device`` and refuses a device this machine
   does not have (instead of a CUDA traceback deep inside the first forward pass);
 * :func:`load_json` reads a JSON file and reports a syntax error as ``file, line L, column C: ...``;
@@ -145,6 +147,18 @@ def check_integer(value: Any, key: str, minimum: int, error: type[Exception] = V
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise error(f"{key} = {value!r} must be an integer >= {minimum}{note}")
     return value
+
+
+def error_line(problem: object) -> str:
+    """``error: <problem>`` on one line: a message that spans lines (a wrapped exception, a file's own text)
+    would otherwise break the one-line promise of every command."""
+    return "error: " + " ".join(str(problem).split())
+
+
+def print_error(problem: object) -> int:
+    """Print :func:`error_line` on stderr; returns 1, the exit status of a command refused on bad input."""
+    print(error_line(problem), file=sys.stderr)
+    return 1
 
 
 def check_number(value: Any, key: str, error: type[Exception] = ValueError) -> float:

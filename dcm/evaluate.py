@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from dcm.cli import check_integer, check_number, one_line_warnings, quiet_libraries, resolve_device
+from dcm.cli import check_integer, check_number, error_line, one_line_warnings, quiet_libraries, resolve_device
 from dcm.control.objectives import task_loss, task_window_start
 from dcm.data.atomic import atomic_path, write_problem
 from dcm.data.datamodule import TrajectoryDataset, dataset_channels
@@ -199,12 +199,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         return {}
     bad = [a for a in args if "=" not in a]
     if bad:
-        raise SystemExit(f"error: arguments must be key=value, got {bad}")
+        raise SystemExit(error_line(f"arguments must be key=value, got {bad}"))
     cfg = OmegaConf.merge(OmegaConf.load(CONFIG), OmegaConf.from_dotlist(args))
     unknown = sorted(set(cfg.keys()) - set(OmegaConf.load(CONFIG).keys()))
     missing = sorted(k for k in ("ckpt", "dataset") if OmegaConf.is_missing(cfg, k))
     if unknown or missing:
-        raise SystemExit(f"error: unknown keys {unknown} / missing keys {missing}; see python -m dcm.evaluate --help")
+        raise SystemExit(error_line(f"unknown keys {unknown} / missing keys {missing}; see python -m dcm.evaluate --help"))
     try:
         out = check_out(cfg.out, {key: cfg[key] for key in ("ckpt", "dataset", "reference", "prior")})
         result = evaluate(cfg.ckpt, cfg.dataset, split=str(cfg.split), n_samples=cfg.n_samples, n_eval=cfg.n_eval,
@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                           task_from_s=check_number(cfg.task_from_s, "task_from_s"), prior=cfg.prior,
                           prior_weight=cfg.prior_weight)
     except ValueError as err:  # ModelInputError, DatasetError, DatasetMismatchError, CheckpointKindError, ...
-        raise SystemExit(f"error: {err}") from None
+        raise SystemExit(error_line(err)) from None
     rows = {result["model"]: result, **result.get("references", {})}
     row_format = "%-16s %9s %15s %9s %12s %9s %11s %12s"
     print(f"n={result['n']} trajectories, {result['n_skills']} skills ({result['split']} split)")
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             with atomic_path(out) as tmp:  # an old metrics file stays whole if this fails
                 tmp.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
         except OSError as err:  # checked before evaluating, but a disk can fill up meanwhile
-            raise SystemExit(f"error: out={out}: cannot write the metrics: {err}") from None
+            raise SystemExit(error_line(f"out={out}: cannot write the metrics: {err}")) from None
         print(f"wrote {out}")
     return result
 

@@ -35,7 +35,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Sequence
 
-from dcm.cli import CONF_DIR, quiet_libraries
+from dcm.cli import CONF_DIR, print_error, quiet_libraries
 from dcm.data.generate_checks import (GenerationError, build_settings, check_demos, check_embodiment,
                                       check_run_settings, check_stiffness_settings, check_waypoint_recording,
                                       existing_output_is_current)
@@ -174,7 +174,7 @@ def main() -> None:
         try:
             generate(cfg)
         except (GenerationError, DatasetError, MergeError) as err:
-            print(f"error: {err}", file=sys.stderr)
+            print_error(err)
             sys.exit(2)
 
     run()

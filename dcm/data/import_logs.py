@@ -66,7 +66,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from dcm.cli import quiet_libraries
+from dcm.cli import print_error, quiet_libraries
 from dcm.data.log_episode import (
     NOMINAL_DOWN,
     EpisodeStreams,
@@ -220,18 +220,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     quiet_libraries()
     problem = _option_problem(args)
     if problem:
-        print(f"error: {problem}", file=sys.stderr)
-        return 1
+        return print_error(problem)
     if args.out.exists() and not args.overwrite:
-        print(f"error: {args.out} exists; pass --overwrite to replace it, or choose another --out", file=sys.stderr)
-        return 1
+        return print_error(f"{args.out} exists; pass --overwrite to replace it, or choose another --out")
     try:
         topics = topics_from_arguments(args)
         n = import_logs(args.log_dir, args.out, args.control_hz, args.horizon, args.lowpass_hz, args.lowpass_order,
                         args.contact_threshold_N, overwrite=args.overwrite, topics=topics)
     except (LogFormatError, DatasetError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
+        return print_error(err)
     print(f"wrote {args.out}: {n} trajectories")
     return 0
 

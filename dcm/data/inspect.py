@@ -19,6 +19,7 @@ from typing import Any, Sequence
 import h5py
 import numpy as np
 
+from dcm.cli import print_error
 from dcm.data.schema import CHANNELS, FIELDS, SPLITS, DatasetError, _decode_attr, load_dataset
 
 
@@ -263,8 +264,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.demo_plot is not None:
             print(f"wrote {plot_demo_trials(args.file, args.demo_plot, args.out)}")
     except DatasetError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
+        return print_error(err)
     return 0
 
 

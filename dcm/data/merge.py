@@ -23,6 +23,7 @@ from typing import Any, Sequence
 import h5py
 import numpy as np
 
+from dcm.cli import print_error
 from dcm.data.atomic import atomic_path, write_problem
 
 from dcm.data.schema import FIELDS, SCALARS, SPLITS, TRAJ_NAME_FORMAT, DatasetError, _decode_attr, read_root_attrs, \
@@ -201,11 +202,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         n = merge_shards(args.out, args.shards, overwrite=args.overwrite)
     except (MergeError, DatasetError) as err:
-        print(f"error: merge failed: {err}", file=sys.stderr)
-        return 1
+        return print_error(f"merge failed: {err}")
     except OSError as err:  # the output's directory cannot be created or written
-        print(f"error: merge failed: cannot write {args.out}: {err}", file=sys.stderr)
-        return 1
+        return print_error(f"merge failed: cannot write {args.out}: {err}")
     print(f"wrote {args.out}: {n} trajectories from {len(args.shards)} shards")
     return 0
 

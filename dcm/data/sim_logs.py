@@ -29,6 +29,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from dcm.cli import print_error
 from dcm.data.log_writer import RobotConventions, TrialSignals, robot_streams, write_bag, write_csv_episode, write_meta
 
 REPO = Path(__file__).resolve().parents[2]
@@ -258,18 +259,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                ("--duration-s", args.duration_s, None),
                                                ("--embodiment", args.embodiment, "tool")) if value != default]
     if args.seed < 0:
-        print(f"error: --seed {args.seed}: must be an integer >= 0", file=sys.stderr)
-        return 1
+        return print_error(f"--seed {args.seed}: must be an integer >= 0")
     if args.schedules is not None and given:
-        print(f"error: --schedules takes the demo, embodiment and schedules from round.yaml; drop {', '.join(given)}",
-              file=sys.stderr)
-        return 1
+        return print_error("--schedules takes the demo, embodiment and schedules from round.yaml; "
+                           f"drop {', '.join(given)}")
     try:
         n = simulate_logs(args.out, args.format, args.demo, args.trials, args.seed, args.embodiment,
                           args.duration_s, args.schedules, args.clean, args.storage, args.split)
     except SimLogsError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
+        return print_error(err)
     print(f"wrote {n} {args.format} episode(s) to {args.out}; import with: dcm-import-logs {args.out} --out <file>.h5")
     return 0
 

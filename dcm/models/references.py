@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import linalg
 
-from dcm.cli import quiet_libraries
+from dcm.cli import error_line, quiet_libraries
 from dcm.control.objectives import task_loss, task_window_start
 from dcm.data.atomic import write_problem
 from dcm.data.recording import stored_recording
@@ -355,12 +355,12 @@ def main(argv: list[str] | None = None) -> Path:
     args = parser.parse_args(argv)
     quiet_libraries()
     if problem := write_problem(args.out):
-        raise SystemExit(f"error: --out {args.out} cannot be written: {problem}")
+        raise SystemExit(error_line(f"--out {args.out} cannot be written: {problem}"))
     try:
         model = StiffnessRegression.fit_dataset(args.dataset, args.split, args.alpha, args.n_phases,
                                                 task_from_s=args.task_from_s)
     except ValueError as err:  # ReferenceError, DatasetError, StiffnessScheduleError
-        raise SystemExit(f"error: {err}") from None
+        raise SystemExit(error_line(err)) from None
     out = model.save(args.out)
     fitted = model.info["train_fit"]
     r = fitted["R_within_spearman"]

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from dcm.cli import print_error
 from dcm.control import equal_time_phases, schedule_from_phases
 
 REPO = Path(__file__).resolve().parents[2]
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         render(args.out, args.embodiment, args.demo, args.domain, seed=args.seed)
     except ValueError as err:  # bad spec, waypoint file, unavailable embodiment: say what, no traceback
-        print(f"error: {err}", file=sys.stderr)
+        print_error(err)
         return 2
     return 0
 

@@ -19,7 +19,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, quiet_libraries, to_run_log
+from dcm.cli import CONF_DIR, error_line, print_error, quiet_libraries, to_run_log
 from dcm.training.checks import TrainConfigError, check_data_argument, check_dataset_overrides, check_resume_argument
 from dcm.training.run_dir import SUMMARY_FILE
 
@@ -51,8 +51,8 @@ def _stop(err: Exception) -> None:
     re-raises instead."""
     if os.environ.get("HYDRA_FULL_ERROR") == "1" or HydraConfig.get().mode == RunMode.MULTIRUN:
         raise err
-    print(f"error: {err}", file=sys.stderr)
-    to_run_log(f"error: {err}")  # the run directory's train.log says why the run stopped
+    print_error(err)
+    to_run_log(error_line(err))  # the run directory's train.log says why the run stopped
     sys.exit(2)
 
 
@@ -95,7 +95,7 @@ def main() -> None:
         check_data_argument(sys.argv[1:])
         check_resume_argument(sys.argv[1:])
     except TrainConfigError as err:
-        print(f"error: {err}", file=sys.stderr)
+        print_error(err)
         sys.exit(2)
     hydra_main()
 

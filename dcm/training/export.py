@@ -14,6 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from dcm.cli import print_error
 from dcm.models.checkpoint import export_checkpoint
 from dcm.models.configuration import ModelInputError
 from dcm.models.predict import load_model
@@ -37,8 +38,7 @@ def main(argv: list[str] | None = None) -> int:
             card, source = {**run_card(source), **card}, run_checkpoint(source)
         out = export_checkpoint(source, target, card, verify=load_model)
     except (ModelInputError, OSError) as err:
-        print(f"error: {' '.join(str(err).split())}", file=sys.stderr)
-        return 1
+        return print_error(err)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
     return 0
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, one_line_warnings, quiet_libraries, to_run_log
+from dcm.cli import CONF_DIR, error_line, one_line_warnings, quiet_libraries, to_run_log
 
 
 # An absolute config path: a relative one would be looked up as a Python package once this is imported as a module.
@@ -37,7 +37,7 @@ def main(cfg: DictConfig) -> None:
                                  "the schedules>")
             results = tune(cfg, Path(cfg.out_dir))
     except (ValueError, OSError) as err:  # TuneConfigError, TrialLogMismatch, ModelInputError, DemoSpecError, ...
-        line = f"error: {' '.join(str(err).split())}"
+        line = error_line(err)
         to_run_log(line)  # the run directory's tune.log says why the run stopped
         raise SystemExit(line) from None
     if "loop" in results:
