@@ -1,7 +1,7 @@
 """Helpers shared by the command-line entry points, so that a user's mistake ends in one clear line.
 
-* :func:`error_line` / :func:`print_error` state a user error as the one ``error: ...`` line every command ends
-  with, whatever line breaks the message holds;
+* :func:`one_line`, :func:`error_line` and :func:`print_error` state a user error as the one ``error: ...``
+  line every command ends with, whatever line breaks the message holds;
 * :func:`resolve_device` turns a ``device=`` setting into a ``torch.device`` and refuses a device this machine
   does not have (instead of a CUDA traceback deep inside the first forward pass);
 * :func:`load_json` reads a JSON file and reports a syntax error as ``file, line L, column C: ...``;
@@ -149,10 +149,15 @@ def check_integer(value: Any, key: str, minimum: int, error: type[Exception] = V
     return value
 
 
+def one_line(text: object) -> str:
+    """``text`` with every run of whitespace, line breaks included, made one space: a wrapped exception or a
+    file's own text would otherwise break the one-line promise of every command's errors and warnings."""
+    return " ".join(str(text).split())
+
+
 def error_line(problem: object) -> str:
-    """``error: <problem>`` on one line: a message that spans lines (a wrapped exception, a file's own text)
-    would otherwise break the one-line promise of every command."""
-    return "error: " + " ".join(str(problem).split())
+    """``error: <problem>`` as the one line a refused command ends with."""
+    return "error: " + one_line(problem)
 
 
 def print_error(problem: object) -> int:
@@ -199,7 +204,7 @@ def one_line_warnings() -> None:
 
     def show(message: Any, category: type[Warning], filename: str, lineno: int, file: Any = None,
              line: str | None = None) -> None:
-        text = f"warning: {category.__name__}: {' '.join(str(message).split())}"
+        text = f"warning: {category.__name__}: {one_line(message)}"
         print(text, file=sys.stderr if file is None else file)
         to_run_log(text, logging.WARNING)
 

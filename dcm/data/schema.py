@@ -31,6 +31,7 @@ from typing import Any, Mapping, Sequence
 import h5py
 import numpy as np
 
+from dcm.cli import one_line
 from dcm.data.atomic import atomic_path
 
 FORMAT_VERSION = "1"
@@ -180,7 +181,7 @@ def _parse_config(text: str, path: str | os.PathLike) -> dict[str, Any]:
     try:
         loaded = yaml.safe_load(text) if text.strip() else {}
     except yaml.YAMLError as err:
-        raise DatasetError(path, f"not readable as YAML ({' '.join(str(err).split())})", field=CONFIG_ATTR) from None
+        raise DatasetError(path, f"not readable as YAML ({one_line(err)})", field=CONFIG_ATTR) from None
     if not isinstance(loaded, dict):
         raise DatasetError(path, f"expected a mapping of settings, got {type(loaded).__name__}", field=CONFIG_ATTR)
     return loaded

@@ -24,6 +24,7 @@ from typing import Any
 import torch
 
 from dcm import __version__
+from dcm.cli import one_line
 from dcm.models.configuration import (
     CheckpointIncompatibleError,
     CheckpointKindError,
@@ -61,11 +62,11 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
         if "weights only" not in str(err).lower():
-            raise ModelInputError(f"checkpoint {path} is not readable: {' '.join(str(err).split())}") from err
+            raise ModelInputError(f"checkpoint {path} is not readable: {one_line(err)}") from err
         raise CheckpointUnsafeError(f"{path}: not a plain-data dcm checkpoint (would unpickle {_unpickled(err)}); "
                                     "refusing to load it") from None
     except Exception as err:  # noqa: BLE001 - a truncated or foreign file: not a usable checkpoint
-        raise ModelInputError(f"checkpoint {path} is not readable: {' '.join(str(err).split())}") from err
+        raise ModelInputError(f"checkpoint {path} is not readable: {one_line(err)}") from err
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise ModelInputError(f"checkpoint {path} is not a Lightning checkpoint (no state_dict)")
     return ckpt
@@ -98,7 +99,7 @@ def _incompatible(path: str | Path, written_by: str | None, err: RuntimeError) -
     labels = {"Missing key(s)": "missing", "Unexpected key(s)": "unexpected"}
     names = [f"{labels[label]} {part.split(':', 1)[1].strip().rstrip('.')}" for part in text.split("\n\t")
              for label in labels if part.startswith(label)]
-    detail = "; ".join(names)[:300] or " ".join(text.split())[:300]
+    detail = "; ".join(names)[:300] or one_line(text)[:300]
     return CheckpointIncompatibleError(
         f"checkpoint {path} (dcm {written_by or 'unknown'}) does not fit this code (dcm {__version__}): "
         f"parameter names changed: {detail}. Retrain, or load it with the dcm version that wrote it")

@@ -17,6 +17,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from dcm.cli import one_line
 from dcm.control.objectives import task_loss
 from dcm.models.checkpoint import checkpoint_card, checkpoint_kind
 from dcm.models.configuration import CheckpointKindError, ModelInputError
@@ -70,7 +71,7 @@ def load_model(path: str | Path, map_location: Any = "cpu") -> Any:
     try:
         model = model_class(checkpoint_kind(path)).load_from_checkpoint(path, map_location=map_location)
     except ModelInputError as err:
-        raise type(err)(" ".join(str(err).split())) from None  # one line, whatever torch.load said
+        raise type(err)(one_line(err)) from None  # one line, whatever torch.load said
     model.eval()
     return model
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.cli import check_integer, check_number
+from dcm.cli import check_integer, check_number, one_line
 from dcm.control import TASK_LOSSES, phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import SearchSpace, check_budget, make_search, space_from_settings
@@ -45,7 +45,7 @@ def _check_search(cfg: Any, space: SearchSpace) -> None:
     try:
         search = make_search(name, space, 0, **options)
     except (TypeError, ValueError) as err:
-        raise TuneConfigError(f"search={name} with options {options}: {' '.join(str(err).split())}") from None
+        raise TuneConfigError(f"search={name} with options {options}: {one_line(err)}") from None
     startup = options.get("n_startup_trials")
     for key in ("robot_free.n_trials", "robot_based.n_trials"):
         n = cfg.robot_free.n_trials if key == "robot_free.n_trials" else cfg.robot_based.n_trials
@@ -54,7 +54,7 @@ def _check_search(cfg: Any, space: SearchSpace) -> None:
         try:
             check_budget(search, n)
         except ValueError as err:
-            raise TuneConfigError(f"{key} = {n}: {' '.join(str(err).split())}") from None
+            raise TuneConfigError(f"{key} = {n}: {one_line(err)}") from None
         if isinstance(startup, int) and n <= startup:
             raise TuneConfigError(
                 f"{key} = {n} is not above search.options.n_startup_trials = {startup}: every trial would be a "

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from dcm.cli import one_line
 from dcm.control import phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import make_search
@@ -101,7 +102,7 @@ def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | No
         model.set_sampler(kind, steps)
     except ValueError as err:
         raise TuneConfigError(f"robot_free.sampling_steps = {steps} with robot_free.sampler = {kind}: "
-                              f"{' '.join(str(err).split())} (robot_free.sampling_steps=null runs all T steps)"
+                              f"{one_line(err)} (robot_free.sampling_steps=null runs all T steps)"
                               ) from None
     return True
 
