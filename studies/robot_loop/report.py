@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from studies.tuning_study.study_stats import signed_rank_test
+
 ORDER = ["loop_gp_5", "loop_gp_10", "loop_gp_15", "loop_none_5", "loop_none_10", "loop_none_15", "one_shot_5",
          "prior_5", "prior_15", "robot_based_20", "robot_based_50"]
 TRIALS = {"one_shot_5": 5, "prior_5": 5, "prior_15": 15, "robot_based_20": 20, "robot_based_50": 50}
@@ -36,17 +38,8 @@ def per_model(cases: list[dict[str, Any]], a: str, b: str) -> dict[str, float]:
 def paired(cases: list[dict[str, Any]], a: str, b: str, by_model: bool = False) -> dict[str, Any]:
     """Median difference a - b, wins of a, two-sided Wilcoxon p: over (checkpoint, skill, tuning seed) cases, or
     with ``by_model`` over the checkpoints' mean differences."""
-    diff = np.array(list(per_model(cases, a, b).values()) if by_model else [difference(c, a, b) for c in cases])
-    return signed_rank(diff)
-
-
-def signed_rank(diff: np.ndarray) -> dict[str, Any]:
-    from scipy.stats import wilcoxon
-
-    nonzero = diff[diff != 0]
-    p = float(wilcoxon(nonzero).pvalue) if len(nonzero) >= 2 else float("nan")
-    return {"median_diff": float(np.median(diff)), "wins": int((diff > 0).sum()), "ties": int((diff == 0).sum()),
-            "n": len(diff), "p": p}
+    diff = list(per_model(cases, a, b).values()) if by_model else [difference(c, a, b) for c in cases]
+    return signed_rank_test(diff)
 
 
 def report(cases: list[dict[str, Any]]) -> str:
@@ -102,7 +95,8 @@ def report(cases: list[dict[str, Any]]) -> str:
 
 def paired_row(cases: list[dict[str, Any]], a: str, b: str, by_model: bool = False) -> str:
     r = paired(cases, a, b, by_model)
-    return f"| {a} | {b} | {r['median_diff']:+.4f} | {r['wins']} | {r['ties']} | {r['n']} | {r['p']:.3g} |"
+    p = "n/a" if r["p"] is None else f"{r['p']:.3g}"
+    return f"| {a} | {b} | {r['median_difference']:+.4f} | {r['wins']} | {r['ties']} | {r['n_pairs']} | {p} |"
 
 
 def write_report(out: Path, path: Path) -> None:

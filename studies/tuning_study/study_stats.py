@@ -26,27 +26,36 @@ def summarize(values: Sequence[float]) -> dict[str, float | int]:
 def paired_test(first: Sequence[float], second: Sequence[float]) -> dict[str, float | int | None]:
     """Two-sided Wilcoxon signed-rank test of ``first`` vs ``second``, paired by position (seed).
 
-    Pairs with a missing (NaN/None) value are dropped. ``p`` is 1 when every difference is zero and None with
-    fewer than two pairs (no test possible); ``wins`` counts the seeds where ``first`` is larger.
+    Pairs with a missing (NaN/None) value are dropped, then :func:`signed_rank_test` tests the differences.
     """
-    from scipy.stats import wilcoxon
-
     if len(first) != len(second):
         raise ValueError(f"paired test needs one value per seed on both sides, got {len(first)} and {len(second)}")
     pairs = [(a, b) for a, b in zip(first, second)
              if a is not None and b is not None and math.isfinite(a) and math.isfinite(b)]
-    diff = np.asarray([a - b for a, b in pairs], dtype=np.float64)
+    return signed_rank_test([a - b for a, b in pairs])
+
+
+def signed_rank_test(differences: Sequence[float]) -> dict[str, float | int | None]:
+    """Two-sided Wilcoxon signed-rank test of paired differences against zero.
+
+    Zero differences are dropped before testing, so the p is exact whenever no two differences tie. ``p`` is 1
+    when every difference is zero and None with fewer than two pairs (no test possible); ``wins`` counts the
+    positive differences.
+    """
+    from scipy.stats import wilcoxon
+
+    diff = np.asarray(differences, dtype=np.float64)
     result: dict[str, float | int | None] = {
-        "n_pairs": len(pairs), "median_difference": float(np.median(diff)) if len(diff) else math.nan,
+        "n_pairs": len(diff), "median_difference": float(np.median(diff)) if len(diff) else math.nan,
         "wins": int((diff > 0).sum()), "losses": int((diff < 0).sum()), "ties": int((diff == 0).sum()),
         "statistic": None, "p": None,
     }
-    if len(pairs) < 2:
+    if len(diff) < 2:
         return result
     if not np.any(diff):
         result.update(statistic=0.0, p=1.0)
         return result
-    test = wilcoxon(diff, alternative="two-sided", zero_method="wilcox")
+    test = wilcoxon(diff[diff != 0], alternative="two-sided")
     result.update(statistic=float(test.statistic), p=float(test.pvalue))
     return result
 

@@ -50,8 +50,8 @@ def test_the_report_tests_over_trained_models_with_one_mean_per_checkpoint():
     assert means.keys() == {"a.ckpt", "b.ckpt"}
     assert means["a.ckpt"] == pytest.approx(-0.1) and means["b.ckpt"] == pytest.approx(0.3)
     by_model = paired(cases, "loop_gp_15", "one_shot_5", by_model=True)
-    assert (by_model["n"], by_model["wins"]) == (2, 1) and by_model["median_diff"] == pytest.approx(0.1)
-    assert paired(cases, "loop_gp_15", "one_shot_5")["n"] == 4
+    assert (by_model["n_pairs"], by_model["wins"]) == (2, 1) and by_model["median_difference"] == pytest.approx(0.1)
+    assert paired(cases, "loop_gp_15", "one_shot_5")["n_pairs"] == 4
     text = report(cases)
     assert "Paired over trained models" in text and "| a.ckpt | -0.1000 |" in text
     assert "not independent replicates" in text and "one checkpoint, so" not in text
