@@ -19,7 +19,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, error_line, print_error, quiet_libraries, to_run_log
+from dcm.cli import CONF_DIR, DeviceError, check_accelerator, error_line, print_error, quiet_libraries, to_run_log
 from dcm.training.checks import TrainConfigError, check_data_argument, check_dataset_overrides, check_resume_argument
 from dcm.training.run_dir import SUMMARY_FILE
 
@@ -65,7 +65,8 @@ def hydra_main(cfg: DictConfig) -> float | None:
     quiet_notices()
     try:
         check_dataset_overrides(HydraConfig.get().overrides.task)
-    except TrainConfigError as err:
+        check_accelerator(cfg.trainer.get("accelerator", "auto"))  # before Lightning's import, which takes seconds
+    except (TrainConfigError, DeviceError) as err:
         _stop(err)
     from dcm.training.train import USER_ERRORS, closing_summary, resolve_resume, reuse_run, train  # Lightning: slow
 
