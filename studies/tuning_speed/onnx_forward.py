@@ -11,9 +11,7 @@ so the chunkwise retention).
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -32,14 +30,10 @@ def main(argv: list[str] | None = None) -> None:
     import onnxruntime as ort
     import torch
 
-    from dcm.models.predict import load_model
+    from studies.tuning_speed.forward_timing import net_and_inputs, print_rounds
 
     torch.set_num_threads(args.threads)
-    net = load_model(args.ckpt).net.eval()
-    generator = torch.Generator().manual_seed(0)
-    cond = torch.randn(args.rows, args.horizon, net.cond_dim, generator=generator)
-    noisy = torch.randn(args.rows, args.horizon, net.out_dim, generator=generator)
-    step = torch.full((args.rows,), args.step, dtype=torch.long)
+    net, (cond, noisy, step) = net_and_inputs(args.ckpt, args.rows, args.horizon, args.step)
     batch = torch.export.Dim("rows")
     with tempfile.TemporaryDirectory() as folder, torch.no_grad():
         path = Path(folder) / "net.onnx"
@@ -53,27 +47,14 @@ def main(argv: list[str] | None = None) -> None:
         expected = net(cond, noisy, step).numpy()
     got = session.run(None, feeds)[0]
 
-    def per_forward_ms(call) -> float:
-        started = time.perf_counter()
-        for _ in range(10):
-            call()
-        return (time.perf_counter() - started) * 100.0
-
     def torch_forward() -> None:
         with torch.inference_mode():
             net(cond, noisy, step)
 
-    rounds = [(per_forward_ms(torch_forward), per_forward_ms(lambda: session.run(None, feeds)))
-              for _ in range(args.repeats)]
-    times = np.array(rounds)
-    load = os.getloadavg()[0]
-    print(f"{args.ckpt}: {args.rows} rows x {args.horizon} steps, {args.threads} thread(s), torch {torch.__version__}, "
-          f"onnxruntime {ort.__version__}, load average {load:.2f}")
     print(f"outputs: max |ORT - torch| {np.abs(got - expected).max():.2e} (output RMS {np.sqrt((expected ** 2).mean()):.3f})")
-    for (t_torch, t_ort) in rounds:
-        print(f"  torch {t_torch:7.1f} ms   ORT {t_ort:7.1f} ms   torch / ORT {t_torch / t_ort:.2f}")
-    print(f"median per forward: torch {np.median(times[:, 0]):.1f} ms, ORT {np.median(times[:, 1]):.1f} ms, "
-          f"torch / ORT {np.median(times[:, 0] / times[:, 1]):.2f}")
+    print_rounds(f"{args.ckpt}: {args.rows} rows x {args.horizon} steps, {args.threads} thread(s), torch "
+                 f"{torch.__version__}, onnxruntime {ort.__version__}", torch_forward,
+                 lambda: session.run(None, feeds), "ORT", args.repeats)
 
 
 if __name__ == "__main__":
