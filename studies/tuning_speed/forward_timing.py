@@ -6,12 +6,25 @@ same alternating rounds in one process, so that load drifting during the run fal
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
+
+def forward_parser(description: str) -> argparse.ArgumentParser:
+    """The options both comparisons take: the checkpoint, the forward's shape, threads and rounds."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--ckpt", default="models/dcm_diverse_contact.ckpt")
+    parser.add_argument("--rows", type=int, default=64, help="rows per forward (the tuner's rows per call)")
+    parser.add_argument("--horizon", type=int, default=240, help="steps per row (12 s at 20 Hz)")
+    parser.add_argument("--step", type=int, default=9, help="the diffusion step fed to the net")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=5, help="alternating rounds of 10 forwards each")
+    return parser
 
 
 def net_and_inputs(ckpt: str, rows: int, horizon: int, step: int) -> tuple[Any, tuple[Any, Any, Any]]:

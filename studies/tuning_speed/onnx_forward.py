@@ -10,27 +10,19 @@ so the chunkwise retention).
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from studies.tuning_speed.forward_timing import forward_parser, net_and_inputs, print_rounds
+
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--ckpt", default="models/dcm_diverse_contact.ckpt")
-    parser.add_argument("--rows", type=int, default=64, help="rows per forward (the tuner's rows per call)")
-    parser.add_argument("--horizon", type=int, default=240, help="steps per row (12 s at 20 Hz)")
-    parser.add_argument("--step", type=int, default=9, help="the diffusion step fed to the net")
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--repeats", type=int, default=5, help="alternating rounds of 10 forwards each")
-    args = parser.parse_args(argv)
+    args = forward_parser(__doc__.split("\n\n")[0]).parse_args(argv)
 
     import onnxruntime as ort
     import torch
-
-    from studies.tuning_speed.forward_timing import net_and_inputs, print_rounds
 
     torch.set_num_threads(args.threads)
     net, (cond, noisy, step) = net_and_inputs(args.ckpt, args.rows, args.horizon, args.step)
