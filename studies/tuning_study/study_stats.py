@@ -38,7 +38,7 @@ def paired_test(first: Sequence[float], second: Sequence[float]) -> dict[str, fl
 def signed_rank_test(differences: Sequence[float]) -> dict[str, float | int | None]:
     """Two-sided Wilcoxon signed-rank test of paired differences against zero.
 
-    Zero differences are dropped before testing, so the p is exact whenever no two differences tie. ``p`` is 1
+    Zero differences are dropped before testing, so scipy gives its exact p up to 50 untied pairs. ``p`` is 1
     when every difference is zero and None with fewer than two pairs (no test possible); ``wins`` counts the
     positive differences.
     """
