@@ -16,8 +16,8 @@ from dcm.models.predict import load_model, predict_task_loss, trained_on
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 RESEARCH_PRESETS = f"hydra.searchpath=[file://{MODELS.parent / 'studies' / 'conf'}]"  # studies/conf/dataset/
-SHIPPED = ("dcm_diverse_contact.ckpt", "baseline_diverse_contact.ckpt", "stiffness_ridge_diverse_contact.json",
-           "dcm_realistic.ckpt")
+SHIPPED = ("dcm_diverse_contact.ckpt", "dcm_diverse_contact_one_step.ckpt", "baseline_diverse_contact.ckpt",
+           "stiffness_ridge_diverse_contact.json", "dcm_realistic.ckpt")
 
 
 def test_every_documented_predictor_is_shipped_and_the_card_matches_the_files() -> None:
@@ -61,7 +61,7 @@ def test_every_shipped_predictor_names_the_recording_of_its_training_demos(tiny_
     assert preset_recording("no_such_preset") is None
 
 
-@pytest.mark.parametrize("predictors", sorted({n.split("_", 1)[1].rsplit(".", 1)[0] for n in SHIPPED if n.startswith("dcm_")}
+@pytest.mark.parametrize("predictors", sorted({trained_on(MODELS / n) for n in SHIPPED if n.startswith("dcm_")}
                                               | {"diverse_contact_fine"}))  # + a preset on its own bowl grid
 def test_make_study_tuning_records_the_skill_as_the_predictors_training_demos(predictors: str) -> None:
     import shutil

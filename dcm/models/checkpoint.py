@@ -146,14 +146,25 @@ def _number(value: Any) -> str:
     return "–" if value is None or value != value else f"{value:.3f}"  # value != value: nan
 
 
+def _distill_command(path: Path, card: dict[str, Any]) -> str:
+    """The ``dcm-distill`` command of a one-step student's card, its settings as options."""
+    distilled, data = card["distilled"], card.get("dataset") or {}
+    options = [f"--{k.replace('_', '-')} {distilled[k]}" for k in ("draws", "teacher_steps", "epochs", "batch_size",
+                                                                   "lr", "seed") if k in distilled]
+    return " ".join(["dcm-distill", f"{path.parent.name}/{distilled.get('teacher')}", f"data/{data.get('path')}",
+                     f"--out {path.parent.name}/{path.name}", *options])
+
+
 def _checkpoint_row(path: Path) -> str:
     card = checkpoint_card(path)
     data = card.get("dataset") or {}
     selected = card.get("selected_on") or {}
-    return (f"| `{path.name}` | {card.get('kind')} ({card.get('stage')}) | `{data.get('path')}` "
-            f"({data.get('plan_fingerprint')}), {card.get('n_train_used')} trajectories | "
-            f"`{card.get('train_command')}` | {selected.get('monitor')} = {_number(selected.get('value'))} "
-            f"at `{selected.get('checkpoint')}` |")
+    kind, recipe = f"{card.get('kind')} ({card.get('stage')})", f"`{card.get('train_command')}`"
+    if card.get("distilled"):  # a one-step student: the teacher's recipe, then its distillation
+        kind, recipe = f"{card.get('kind')}, one-step student", f"{recipe}, then `{_distill_command(path, card)}`"
+    return (f"| `{path.name}` | {kind} | `{data.get('path')}` ({data.get('plan_fingerprint')}), "
+            f"{card.get('n_train_used')} trajectories | {recipe} | {selected.get('monitor')} = "
+            f"{_number(selected.get('value'))} at `{selected.get('checkpoint')}` |")
 
 
 def _reference_row(path: Path) -> str:
@@ -181,7 +192,8 @@ def card_markdown(folder: str | Path) -> str:
     lines = ["# Shipped predictors", "",
              f"Written by `python -m dcm.models.checkpoint card {folder.name}/` from the files' own records. "
              "A checkpoint is the run's selected checkpoint (on the validation split), exported with "
-             "`python -m dcm.training.export <run_dir> --out <file>`.", "",
+             "`python -m dcm.training.export <run_dir> --out <file>`; a one-step student is its teacher's, "
+             "distilled with `dcm-distill` (the selection is the teacher's).", "",
              "| file | kind | trained on (plan fingerprint) | recipe | selected on |", "|---|---|---|---|---|"]
     lines += [_checkpoint_row(path) for path in sorted(folder.glob("*.ckpt"))]
     lines += [_reference_row(path) for path in sorted(folder.glob("*.json"))]

@@ -153,7 +153,9 @@ class DCMConfig(ForceModelConfig):
     # noise schedule: dcm.models.diffusion.NoiseSchedule fields (name, beta_start, ...); conf/schedule/*.yaml
     # omitted fields take NoiseSchedule's defaults (incl. clipping the x0 estimate, which sampling needs)
     schedule: dict[str, Any] = field(default_factory=lambda: {"name": "linear"})
-    sampler: str = "ddpm"  # ddpm (ancestral, T steps) | ddim | ddim_even (deterministic, sampling_steps)
+    # ddpm (ancestral, T steps) | ddim | ddim_even (deterministic, sampling_steps) | one_step (a student written by
+    # dcm-distill, whose net maps unit noise at t = T-1 to a sample in one call; it samples only so)
+    sampler: str = "ddpm"
     sampling_steps: int | None = None  # None = T
     n_samples: int = 1  # k samples averaged per prediction during evaluation
     # L_task of k samples: of_mean (of their mean force) | over_samples (RMS over the samples' L_task, i.e. the
@@ -177,6 +179,12 @@ class DCMConfig(ForceModelConfig):
         self.schedule = {k: v for k, v in dict(self.schedule).items() if k != "_target_"}
         if self.sampler not in SAMPLERS:
             raise ModelInputError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
+        if self.sampler == "one_step":
+            if self.input_scaling != "unit" or self.prediction_type != "sample" or self.sampling_steps not in (None, 1):
+                raise ModelInputError("sampler one_step is a student's (dcm-distill): it needs input_scaling=unit, "
+                                      "prediction_type=sample and sampling_steps 1, got "
+                                      f"{self.input_scaling}, {self.prediction_type}, {self.sampling_steps}")
+            self.sampling_steps = 1
         if self.sampling_steps is not None and not 1 <= int(self.sampling_steps) <= int(self.diffusion_steps):
             raise ModelInputError(
                 f"sampling_steps must be in 1..diffusion_steps={self.diffusion_steps}, got {self.sampling_steps}")

@@ -43,8 +43,17 @@ class DCM(ForceModel):
 
     def set_sampler(self, sampler: str | None = None, sampling_steps: int | None = None) -> None:
         """Switch how predictions are sampled (ddpm | ddim, and DDIM's step count) without retraining: the
-        net is the same for every sampler, so evaluation and tuning can trade steps for speed."""
+        net is the same for every sampler, so evaluation and tuning can trade steps for speed. A one-step student's
+        net is valid at t = T-1 only, so it keeps its sampler."""
         sampler = sampler or self.cfg.sampler
+        student = self.cfg.sampler == "one_step"  # fixed by the checkpoint: only a student samples in one step
+        if student and (sampler != "one_step" or sampling_steps not in (None, 1)):
+            raise ModelInputError(f"sampler {sampler} with {sampling_steps} steps: this DCM is a one-step student "
+                                  "(dcm-distill) and samples only with its own single step (sampler one_step)")
+        if sampler == "one_step" and not student:
+            raise ModelInputError("sampler one_step needs a one-step student of this DCM (dcm-distill); a DCM "
+                                  "trained by train.py samples with ddpm, ddim or ddim_even")
+        sampling_steps = 1 if student else sampling_steps
         scheduler = diffusion.make_scheduler(sampler, self.noise_schedule, self.cfg.diffusion_steps,
                                              self.cfg.prediction_type)
         diffusion.check_inference_steps(scheduler, sampling_steps)
@@ -75,6 +84,12 @@ class DCM(ForceModel):
             return diffusion.shareable_steps(self.sample_scheduler, self.cfg.sampling_steps, self.cfg.input_scaling)
         n = diffusion.check_inference_steps(self.sample_scheduler, self.cfg.sampling_steps)
         return min(int(self.shared_steps), n - 1)
+
+    def on_fit_start(self) -> None:
+        if self.cfg.sampler == "one_step":
+            raise ModelInputError("this DCM is a one-step student (dcm-distill): the diffusion loss would retrain "
+                                  "its net for every step; distil again from a retrained teacher instead")
+        super().on_fit_start()
 
     def denoising_outputs(self, net: nn.Module, cond_n: torch.Tensor, target_n: torch.Tensor,
                           generator: torch.Generator | None = None, groups: torch.Tensor | None = None

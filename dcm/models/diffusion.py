@@ -52,8 +52,9 @@ __all__ = [
 ]
 
 # ddpm: ancestral; ddim: deterministic, n steps T-1, T-1-T/n, ... (ends at T/n - 1); ddim_even: deterministic, n
-# steps spread evenly from T-1 to 0, so the last net call sees an almost clean force
-SAMPLERS = ("ddpm", "ddim", "ddim_even")
+# steps spread evenly from T-1 to 0, so the last net call sees an almost clean force; one_step: a distilled
+# student's (dcm.training.distill) single call at t = T-1 on unit-variance noise, DDIM's one step for its net
+SAMPLERS = ("ddpm", "ddim", "ddim_even", "one_step")
 SCHEDULES = ("linear", "cosine", "sigmoid", "scaled_linear")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 INPUT_SCALINGS = ("unit", "signal")
@@ -225,6 +226,7 @@ def make_scheduler(
       and ends at t = -1; "leading" would start part-way down the chain.
     - DDIM: `set_alpha_to_one=True` so its last step returns the x0 estimate;
       `rescale_betas_zero_snr=False` (our alpha_bar_T is already ~0, and exact zero breaks epsilon-prediction).
+    - one_step: DDIM, run for one step from t = T-1 (the x0 output, clipped, is the sample).
     - ddim_even (:class:`EvenDDIMScheduler`): first-order DPM-Solver++ in data prediction, whose last step
       likewise returns the x0 estimate (`final_sigmas_type="zero"`).
     """
@@ -247,7 +249,7 @@ def make_scheduler(
     kind_l = kind.lower()
     if kind_l == "ddpm":
         return DDPMScheduler(variance_type=sched.variance_type, **common)
-    if kind_l == "ddim":
+    if kind_l in ("ddim", "one_step"):
         return DDIMScheduler(set_alpha_to_one=True, rescale_betas_zero_snr=False, **common)
     if kind_l == "ddim_even":
         even = EvenDDIMScheduler(

@@ -16,7 +16,8 @@ from dcm.control import TASK_LOSSES, phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import SearchSpace, check_budget, make_search, space_from_settings
 
-SAMPLERS = ("ddpm", "ddim", "ddim_even")  # dcm.models.diffusion.SAMPLERS, without importing torch
+SAMPLERS = ("ddpm", "ddim", "ddim_even", "one_step")  # dcm.models.diffusion.SAMPLERS, without importing torch
+AUTO_SAMPLER = "auto"  # robot_free.sampler: a one-step student's own step, ddim for any other DCM
 
 
 class TuneConfigError(ValueError):
@@ -156,9 +157,9 @@ def check_config(cfg: Any) -> CheckedConfig:
     _integer(cfg.validation_rollouts, "validation_rollouts", 1)
     _integer(robot.n_trials, "robot_based.n_trials", 0, " (0 skips the robot-based search)")
     sampler = free.get("sampler")
-    if sampler is not None and sampler not in SAMPLERS:
+    if sampler is not None and sampler not in (AUTO_SAMPLER, *SAMPLERS):
         raise TuneConfigError(f"robot_free.sampler = {sampler!r}; expected null (the checkpoint's), "
-                              + ", ".join(SAMPLERS))
+                              + ", ".join((AUTO_SAMPLER, *SAMPLERS)))
     if free.get("sampling_steps") is not None:
         _integer(free.sampling_steps, "robot_free.sampling_steps", 1, " or null")
     if free.get("shared_steps") not in (None, "auto"):

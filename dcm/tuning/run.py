@@ -37,6 +37,7 @@ from dcm.control import phase_boundaries
 from dcm.control.objectives import task_window_start
 from dcm.search import make_search
 from dcm.tuning.checks import (
+    AUTO_SAMPLER,
     CheckedConfig,
     ConditioningRangeWarning,
     DemoRecordingWarning,
@@ -84,7 +85,8 @@ def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | No
     accuracy for speed without a new checkpoint.
 
     ``sampler``: ``"ddpm"`` (ancestral), ``"ddim"`` or ``"ddim_even"`` (deterministic given the start noise;
-    the latter's steps end at t = 0); None keeps the checkpoint's. ``sampling_steps``: steps of the chain
+    the latter's steps end at t = 0); None keeps the checkpoint's; ``"auto"`` keeps a one-step student's single
+    step (:mod:`dcm.training.distill`) and runs any other DCM with ``"ddim"``. ``sampling_steps``: steps of the chain
     (ddim: must divide T); None keeps the checkpoint's
     when the sampler is unchanged, else T. Predictors that do not diffuse (baseline, stiffness reference) are
     left alone. Returns whether ``model`` was changed; raises :class:`TuneConfigError` naming
@@ -94,6 +96,11 @@ def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | No
 
     if not isinstance(model, DCM) or (sampler is None and sampling_steps is None):
         return False
+    student = model.cfg.sampler == "one_step"
+    if sampler == AUTO_SAMPLER:
+        if student:
+            return False
+        sampler = "ddim"
     kind = model.cfg.sampler if sampler is None else sampler
     steps = sampling_steps
     if steps is None and kind == model.cfg.sampler:
@@ -101,9 +108,9 @@ def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | No
     try:
         model.set_sampler(kind, steps)
     except ValueError as err:
+        hint = "robot_free.sampler=auto" if student else "robot_free.sampling_steps=null runs all T steps"
         raise TuneConfigError(f"robot_free.sampling_steps = {steps} with robot_free.sampler = {kind}: "
-                              f"{one_line(err)} (robot_free.sampling_steps=null runs all T steps)"
-                              ) from None
+                              f"{one_line(err)} ({hint})") from None
     return True
 
 

@@ -49,8 +49,8 @@ TUNERS = {
     # DDIM steps spread evenly from t = T-1 to t = 0
     "even2": ["robot_free.sampler=ddim_even", "robot_free.sampling_steps=2"],
     "even3": ["robot_free.sampler=ddim_even", "robot_free.sampling_steps=3"],
-    # the one-step student of the shipped DCM (python -m studies.tuning_speed.distill), on its own sampler
-    "one_step": ["ckpt=outputs/studies/tuning_speed/distill/dcm_one_step.ckpt", "robot_free.sampler=null",
+    # the shipped DCM's one-step student (dcm-distill), on its own sampler
+    "one_step": ["ckpt=models/dcm_diverse_contact_one_step.ckpt", "robot_free.sampler=null",
                  "robot_free.sampling_steps=null"],
 }
 

@@ -26,9 +26,9 @@ import numpy as np
 # label -> (sampler, sampling steps, samples, task loss, shared steps); None keeps the checkpoint's
 SETTINGS = {
     "own": (None, None, 1, "of_mean", 0),
-    "own_k16": (None, None, 16, "over_samples", "auto"),  # e.g. a one-step student's spread (distill.py)
+    "own_k16": (None, None, 16, "over_samples", "auto"),  # e.g. a one-step student's spread (dcm-distill)
     "ddim5": ("ddim", 5, 1, "of_mean", 0),  # the tuner's default before DDIM-3
-    "ddim10": ("ddim", 10, 1, "of_mean", 0),  # the one-step student's teacher (distill.py)
+    "ddim10": ("ddim", 10, 1, "of_mean", 0),  # the one-step student's teacher (dcm-distill)
     "ddim3": ("ddim", 3, 1, "of_mean", 0),
     "ddim3_k16_independent": ("ddim", 3, 16, "over_samples", 0),
     "ddim3_k16_shared": ("ddim", 3, 16, "over_samples", "auto"),
