@@ -58,6 +58,7 @@ def parse_row(text: str) -> tuple[str, list[str]]:
 def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space: Any) -> dict[str, float]:
     """One robot-free search of ``cfg.robot_free.n_trials`` virtual trials, as ``tune`` runs it, timed."""
     from dcm.cli import resolve_device
+    from dcm.models.predict import describe
     from dcm.search import make_search
     from dcm.tuning.objectives import ModelObjective
     from dcm.tuning.optimize import LoopTimes, optimize
@@ -71,10 +72,12 @@ def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space
     search = make_search(cfg.search.name, space, cfg.seed, **free_search_options(cfg))
     times = LoopTimes()
     optimize(search, objective, cfg.robot_free.n_trials, cfg.robot_free.batch_size, times=times, progress=False)
+    described = describe(model, cfg.robot_free.n_samples)  # the sampler in use, e.g. a student's one step
     return {"total": times.total, "model": objective.seconds_model, "inputs": objective.seconds_inputs,
             "optimiser": times.optimiser,
             "overhead": times.total - objective.seconds_model - objective.seconds_inputs - times.optimiser,
             "precision": getattr(model, "inference_precision", "-"),
+            "sampler": "{sampler}-{sampling_steps}".format_map({"sampler": "-", "sampling_steps": "-", **described}),
             "shared_steps": getattr(model, "resolved_shared_steps", 0)}
 
 
@@ -138,7 +141,7 @@ def main() -> None:
     for label, overrides in rows:
         cfg = compose([*common, *overrides])
         t = time_model(cfg, checked.spec, simulator, demo, skill, space)
-        settings = f"{cfg.robot_free.sampler}-{cfg.robot_free.sampling_steps}, k={cfg.robot_free.n_samples}"
+        settings = f"{t['sampler']}, k={cfg.robot_free.n_samples}"
         if cfg.robot_free.n_samples > 1:
             settings += f", shared {t['shared_steps']}"
         lines.append(f"{label + ' (' + settings + ')':<34} {t['precision']:>9} | {t['total']:7.1f} {t['model']:6.1f} "

@@ -13,7 +13,7 @@ MODULE = r"(dcm(?:\.\w+)+)(?::\w+)?"  # a string naming a module (or module:attr
 # The user journeys: the two root entries and the console scripts' modules.
 ENTRY_MODULES = ("train", "tune", "dcm.data.generate", "dcm.data.import_logs", "dcm.data.sim_logs", "dcm.data.merge",
                  "dcm.data.inspect", "dcm.evaluate", "dcm.sim.render", "dcm.models.checkpoint", "dcm.training.export",
-                 "dcm.models.references")
+                 "dcm.training.distill", "dcm.models.references")
 
 
 def _module_name(path: Path) -> str:

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+TEACHER = "models/dcm_diverse_contact.ckpt"  # every tuner's model unless its overrides name another
 TUNERS = {
     "old": ["robot_free.sampler=ddim", "robot_free.sampling_steps=5", "robot_free.precision=float32",
             "robot_free.batched_search=false"],
@@ -56,11 +57,12 @@ TUNERS = {
 
 
 def tune_config(skill: str, seed: int, tuner: str, threads: int, out_dir: Path, extra: Sequence[str] = ()) -> Any:
-    """The quickstart's config of one run: ``demo=<skill>``, seed, the tuner's overrides, no robot-based search."""
+    """The quickstart's config of one run: the shipped multi-step DCM, ``demo=<skill>``, seed, the tuner's
+    overrides, no robot-based search."""
     from hydra import compose, initialize_config_dir
 
-    overrides = [f"demo={skill}", f"seed={seed}", "robot_based.n_trials=0", f"torch_threads={threads}",
-                 f"out_dir={out_dir}", *TUNERS[tuner], *extra]
+    overrides = [f"ckpt={TEACHER}", f"demo={skill}", f"seed={seed}", "robot_based.n_trials=0",
+                 f"torch_threads={threads}", f"out_dir={out_dir}", *TUNERS[tuner], *extra]
     with initialize_config_dir(config_dir=str(CONF_DIR)):
         return compose(config_name="quickstart", overrides=overrides)
 
