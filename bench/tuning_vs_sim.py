@@ -3,17 +3,17 @@
     MUJOCO_GL=egl python bench/tuning_vs_sim.py [--threads 1] [--trials 1000] [--sim-trials 50]
         [--row "label: k=v k=v"] [--parallel-retention] [k=v ...]
 
-In one process, on the quickstart's skill (``conf/quickstart.yaml``: the shipped DCM, the wavelike demo recorded
-as its training demos were) and at one torch thread count, it times
+In one process, on the quickstart's skill (``conf/quickstart.yaml``: the shipped DCM's one-step student, the wavelike
+demo recorded as its training demos were) and at one torch thread count, it times
 
 * ``default``: ``--trials`` virtual trials exactly as ``tune.py`` runs its robot-free search (the composed
   config's predictor, sampler, precision, batch size and search; :func:`dcm.tuning.optimize.optimize`, no log);
 * ``16 samples``: the same with ``robot_free.n_samples=16 robot_free.task_loss=over_samples`` (the samples of a
   proposal share the leading denoising steps, ``robot_free.shared_steps=auto``; ``--row "independent:
   robot_free.n_samples=16 robot_free.task_loss=over_samples robot_free.shared_steps=0"`` times them unshared);
-* every ``--row`` given (its overrides on top of the rest, e.g. the previous default:
-  ``--row "ddim-5 float32 unbatched: robot_free.sampling_steps=5 robot_free.precision=float32
-  robot_free.batched_search=false"``);
+* every ``--row`` given (its overrides on top of the rest, e.g. the multi-step DCM as the tuner ran it before:
+  ``--row "ddim-5 float32 unbatched: ckpt=models/dcm_diverse_contact.ckpt robot_free.sampling_steps=5
+  robot_free.precision=float32 robot_free.batched_search=false"``);
 * ``--sim-trials`` simulator rollouts of the same skill (seeded random schedules from the same box), whose
   mean time per trial is extrapolated to ``--trials``;
 

@@ -29,6 +29,7 @@ def test_the_student_samples_in_one_call_and_keeps_a_spread(student: Path, tiny_
     assert card["distilled"]["teacher_steps"] == 5 and card["distilled"]["draws"] == 2
     (evaluation,) = card["evaluations"].values()
     assert evaluation["split"] == "valid" and evaluation["sampler"] == "one_step"
+    assert evaluation["ckpt"] == str(student.resolve())
 
     calls = []
     model.inference_net.register_forward_hook(lambda module, args, out: calls.append(args[0].shape[0]))
@@ -51,6 +52,8 @@ def test_the_student_keeps_its_sampler(student: Path, tiny_checkpoint: Path) -> 
     assert use_sampler(model, "auto", 3) is False and model.cfg.sampling_steps == 1
     with pytest.raises(TuneConfigError, match=r"robot_free.sampler=auto"):
         use_sampler(model, "ddim", 3)
+    with pytest.raises(ValueError, match="one-step student"):
+        model.on_fit_start()  # train.py would retrain its net with the diffusion loss
     teacher = load_model(tiny_checkpoint)
     assert use_sampler(teacher, "auto", 5) and (teacher.cfg.sampler, teacher.cfg.sampling_steps) == ("ddim", 5)
     with pytest.raises(ValueError, match="needs a one-step student"):

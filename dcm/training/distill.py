@@ -19,7 +19,7 @@ sense of Luhman & Luhman 2021), so one call keeps both the order of schedules an
    (``robot_free.sampler=auto``).
 
 The pairs and the training state after every epoch are kept in ``<out>.work/``; the same command started
-again resumes there and writes the same bytes as an uninterrupted run. The folder is removed at the end.
+again resumes there and ends with the weights of an uninterrupted run. The folder is removed at the end.
 """
 
 from __future__ import annotations
@@ -236,8 +236,8 @@ def distill(teacher_path: Path, dataset: Path, out: Path, settings: DistillSetti
     card = ckpt[CARD_KEY]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        card["evaluations"] = {f"eval_valid_{dataset.stem}": evaluate(student_path, dataset, split="valid",
-                                                                      device=device)}
+        evaluation = evaluate(student_path, dataset, split="valid", device=device)
+    card["evaluations"] = {f"eval_valid_{dataset.stem}": {**evaluation, "ckpt": str(out.resolve())}}
     export_checkpoint(student_path, out, card, verify=load_model)
     shutil.rmtree(work)
     return out
