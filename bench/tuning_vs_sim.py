@@ -77,7 +77,7 @@ def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space
             "optimiser": times.optimiser,
             "overhead": times.total - objective.seconds_model - objective.seconds_inputs - times.optimiser,
             "precision": getattr(model, "inference_precision", "-"),
-            "sampler": "{sampler}-{sampling_steps}".format_map({"sampler": "-", "sampling_steps": "-", **described}),
+            "sampler": f"{described.get('sampler', '-')}-{described.get('sampling_steps', '-')}",
             "shared_steps": getattr(model, "resolved_shared_steps", 0)}
 
 

@@ -38,6 +38,11 @@ class DCM(ForceModel):
         self.shared_steps: int | str = 0  # of predictions only (set_shared_steps); 0: independent samples
 
     @property
+    def is_one_step_student(self) -> bool:
+        """Written by dcm-distill: its net maps unit noise at t = T-1 to a sample, and it samples only so."""
+        return self.cfg.sampler == "one_step"  # set_sampler never switches a model into or out of it
+
+    @property
     def default_samples(self) -> int:
         return int(self.cfg.n_samples)
 
@@ -46,7 +51,7 @@ class DCM(ForceModel):
         net is the same for every sampler, so evaluation and tuning can trade steps for speed. A one-step student's
         net is valid at t = T-1 only, so it keeps its sampler."""
         sampler = sampler or self.cfg.sampler
-        student = self.cfg.sampler == "one_step"  # fixed by the checkpoint: only a student samples in one step
+        student = self.is_one_step_student
         if student and (sampler != "one_step" or sampling_steps not in (None, 1)):
             raise ModelInputError(f"sampler {sampler} with {sampling_steps} steps: this DCM is a one-step student "
                                   "(dcm-distill) and samples only with its own single step (sampler one_step)")
@@ -86,7 +91,7 @@ class DCM(ForceModel):
         return min(int(self.shared_steps), n - 1)
 
     def on_fit_start(self) -> None:
-        if self.cfg.sampler == "one_step":
+        if self.is_one_step_student:
             raise ModelInputError("this DCM is a one-step student (dcm-distill): the diffusion loss would retrain "
                                   "its net for every step; distil again from a retrained teacher instead")
         super().on_fit_start()

@@ -72,7 +72,7 @@ def load_teacher(path: Path) -> Any:
     if not isinstance(model, DCM):
         raise DistillError(f"{path}: a {getattr(model, 'model_kind', type(model).__name__)} predictor; only a DCM "
                            "checkpoint has a denoising chain to distil")
-    if model.cfg.sampler == "one_step":
+    if model.is_one_step_student:
         raise DistillError(f"{path}: already a one-step student; distil its teacher instead")
     return model
 
@@ -231,9 +231,9 @@ def distill(teacher_path: Path, dataset: Path, out: Path, settings: DistillSetti
         _save(pairs, pairs_path)
     weights = train_student(teacher, cond_n, pairs["z"], pairs["x0"], settings, state_path, progress)
     student_path = work / "student.ckpt"
-    _save(student_checkpoint(teacher_path, weights, settings), student_path)
-    ckpt = torch.load(student_path, weights_only=False)
-    card = ckpt[CARD_KEY]
+    student = student_checkpoint(teacher_path, weights, settings)
+    _save(student, student_path)
+    card = student[CARD_KEY]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         evaluation = evaluate(student_path, dataset, split="valid", device=device)

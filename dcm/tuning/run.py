@@ -96,7 +96,7 @@ def use_sampler(model: Any, sampler: str | None = None, sampling_steps: int | No
 
     if not isinstance(model, DCM) or (sampler is None and sampling_steps is None):
         return False
-    student = model.cfg.sampler == "one_step"
+    student = model.is_one_step_student
     if sampler == AUTO_SAMPLER:
         if student:
             return False
