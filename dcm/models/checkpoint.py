@@ -160,11 +160,21 @@ def _checkpoint_row(path: Path) -> str:
     data = card.get("dataset") or {}
     selected = card.get("selected_on") or {}
     kind, recipe = f"{card.get('kind')} ({card.get('stage')})", f"`{card.get('train_command')}`"
+    selection = f"{selected.get('monitor')} = {_number(selected.get('value'))} at `{selected.get('checkpoint')}`"
     if card.get("distilled"):  # a one-step student: the teacher's recipe, then its distillation
         kind, recipe = f"{card.get('kind')}, one-step student", f"{recipe}, then `{_distill_command(path, card)}`"
+        selection = f"the teacher's {selection}{_own_valid_ranking(card)}"
     return (f"| `{path.name}` | {kind} | `{data.get('path')}` ({data.get('plan_fingerprint')}), "
-            f"{card.get('n_train_used')} trajectories | {recipe} | {selected.get('monitor')} = "
-            f"{_number(selected.get('value'))} at `{selected.get('checkpoint')}` |")
+            f"{card.get('n_train_used')} trajectories | {recipe} | {selection} |")
+
+
+def _own_valid_ranking(card: dict[str, Any]) -> str:
+    """A student is not selected itself, so its row quotes its own valid evaluation beside the teacher's
+    selection: a user comparing rows must not read the teacher's figure as the student's."""
+    for name, metrics in sorted((card.get("evaluations") or {}).items()):
+        if "valid" in name and "R_within" in metrics:
+            return f"; its own R_within on valid {_number(metrics['R_within'])} (`{name}`)"
+    return "; no evaluation of its own"
 
 
 def _reference_row(path: Path) -> str:
