@@ -80,6 +80,12 @@ def _arrays_and_masks(path: Path) -> dict[str, bytes]:
     (["dataset.valid_fraction=1.5"], "dataset.valid_fraction = 1.5 must be in [0, 1)"),
     (["demo.waypoints=data/waypoints/example.csv", "demo.n_trials=0"], "demo.n_trials = 0 must be an integer >= 1"),
     (["demo.waypoints=data/waypoints/example.csv", "demo.split=tset"], "demo.split = 'tset'"),
+    (["dataset.duration_s=abc"], "dataset.duration_s = 'abc' must be a duration in seconds > 0 (or null with "
+                                 "demo.waypoints=<file>: the file's own timing)"),
+    (["demo.waypoints=data/waypoints/example.csv", "dataset.duration_s=-1"], "dataset.duration_s = -1 must be"),
+    (["dataset.duration_s=true"], "dataset.duration_s = True must be"),
+    (["dataset.duration_s=null"], "dataset.duration_s = null keeps a waypoint file's own timing, but this run has "
+                                  "no demo.waypoints=<file>"),
 ])
 def test_settings_are_checked_before_any_work(tmp_path: Path, overrides: list[str], message: str) -> None:
     out = tmp_path / "x.h5"
@@ -307,6 +313,20 @@ def test_the_waypoint_demo_is_recorded_as_the_presets_demos_are(tmp_path: Path) 
     assert file_recording(out) == Recording(2.0, True, 64, 0.0)
 
 
+def test_a_null_duration_keeps_the_waypoint_files_own_timing(tmp_path: Path) -> None:
+    """``dataset.duration_s=null`` records the file as it is, and the dataset stores the duration it was recorded
+    at (so later checks read a number, not null)."""
+    from dcm.data.recording import file_recording
+    from dcm.data.schema import load_dataset
+
+    out = tmp_path / "mine.h5"
+    example = REPO / "data" / "waypoints" / "example.csv"  # 7.95 s: 160 steps at 20 Hz
+    generate(compose_config("tiny", [f"demo.waypoints={example}", "dataset.duration_s=null", f"out={out}",
+                                     "demo.n_trials=1", "workers=1", "progress=false"]))
+    assert load_dataset(out, split="train").horizon == 160
+    assert file_recording(out).duration_s == 8.0
+
+
 def test_a_waypoint_demo_recorded_otherwise_than_the_preset_says_is_refused_by_name(tmp_path: Path) -> None:
     csv = _two_second_path(tmp_path)
     out = tmp_path / "mine.h5"
@@ -314,8 +334,8 @@ def test_a_waypoint_demo_recorded_otherwise_than_the_preset_says_is_refused_by_n
     with pytest.raises(GenerationError) as err:
         generate(compose_config("tiny", [f"demo.waypoints={example}", f"out={out}", *WAYPOINT_RUN]))
     assert str(err.value) == (f"dataset.duration_s = 2 s (dataset=tiny) does not apply to demo.waypoints={example}, "
-                              "which sets its own timing (160 steps at 20 Hz); pass dataset.duration_s=8 to record "
-                              "it as it is")
+                              "which sets its own timing (160 steps at 20 Hz); pass dataset.duration_s=8 (or null) "
+                              "to record it as it is")
     with pytest.raises(GenerationError, match=r"^demo.bowl has a 112 x 112 heightfield grid, but dataset=tiny records "
                                               r"its demos on a 64 x 64 grid \(dataset.bowl.hfield_res\)"):
         generate(compose_config("tiny", [f"demo.waypoints={csv}", "demo.bowl=large", f"out={out}", *WAYPOINT_RUN]))

@@ -99,7 +99,9 @@ def generate(cfg: Any) -> Path:
         raise GenerationError(f"shard {shard_index} of {shard_count} holds no demos (the plan has {len(all_jobs)})")
     check_demos(jobs, settings["control_hz"], settings["stiffness"])
     if demo_cfg.get("waypoints"):
-        check_waypoint_recording(jobs[0], dataset_cfg, str(demo_cfg["waypoints"]), settings["control_hz"])
+        duration_s = check_waypoint_recording(jobs[0], dataset_cfg, str(demo_cfg["waypoints"]), settings["control_hz"])
+        if cfg.dataset.get("duration_s") is None:  # the file's own timing, stored as a number: the file's recording
+            cfg.dataset.duration_s = duration_s
     try:
         check_budget(search, max(job.n_trials for job in jobs))
     except ValueError as err:

@@ -94,6 +94,7 @@ def check_run_settings(cfg: Any) -> None:
     fraction = cfg.dataset.get("valid_fraction", 0.1)
     if _number(fraction, "dataset.valid_fraction") < 0 or fraction >= 1:
         raise GenerationError(f"dataset.valid_fraction = {fraction!r} must be in [0, 1)")
+    check_duration(cfg.dataset.get("duration_s"), bool(cfg.demo.get("waypoints")))
     for key in cfg.demo:
         if key in RECORDING_KEYS:
             raise GenerationError(f"demo.{key} = {cfg.demo[key]!r}: the waypoint demo is recorded as the preset's "
@@ -107,6 +108,19 @@ def check_run_settings(cfg: Any) -> None:
             raise GenerationError(f"demo.split = {cfg.demo.split!r}; expected one of {', '.join(SPLIT_CHOICES)}")
 
 
+def check_duration(duration_s: Any, waypoint_demo: bool) -> None:
+    """``dataset.duration_s``: seconds, or null for a waypoint demo, which then keeps its file's own timing (as
+    ``demo.duration_s=null`` does for the tuner)."""
+    if duration_s is None:
+        if not waypoint_demo:
+            raise GenerationError("dataset.duration_s = null keeps a waypoint file's own timing, but this run has "
+                                  "no demo.waypoints=<file>; give the demos' duration in seconds")
+        return
+    if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) or not 0 < duration_s < float("inf"):
+        raise GenerationError(f"dataset.duration_s = {duration_s!r} must be a duration in seconds > 0 (or null with "
+                              "demo.waypoints=<file>: the file's own timing)")
+
+
 def check_stiffness_settings(settings: dict[str, Any]) -> StiffnessSearch:
     """The stiffness search space against the controller's limits, and the search strategy's options;
     returns a strategy built from them (for :func:`check_budget` once the trial counts are known)."""
@@ -118,8 +132,9 @@ def check_stiffness_settings(settings: dict[str, Any]) -> StiffnessSearch:
         raise GenerationError(f"search={search['name']} with options {search['options']}: {err}") from None
 
 
-def check_waypoint_recording(job: DemoJob, dataset: dict[str, Any], waypoints: str, control_hz: float) -> None:
-    """The waypoint demo is recorded as the preset says its demos are, or refused naming the setting.
+def check_waypoint_recording(job: DemoJob, dataset: dict[str, Any], waypoints: str, control_hz: float) -> float:
+    """The waypoint demo is recorded as the preset says its demos are, or refused naming the setting; returns
+    the duration the dataset records for it (``horizon / control_hz``, what ``dataset.duration_s=null`` means).
 
     The file stores the preset's recording (:mod:`dcm.data.recording`) as its own, and tools pair predictors
     and datasets on it. Its lead and hover reach the waypoint demo (:func:`dcm.data.presets.plan_demos`), but
@@ -127,22 +142,26 @@ def check_waypoint_recording(job: DemoJob, dataset: dict[str, Any], waypoints: s
     from dcm.data.recording import recording
     from dcm.sim.demos import DemoSpec, DemoSpecError
 
-    preset, name = recording(dataset), dataset.get("name")
     try:
         spec = DemoSpec.from_dict(job.spec, where=f"demo.waypoints={waypoints}")
         horizon = spec.horizon(control_hz)
     except DemoSpecError as err:
         raise GenerationError(str(err)) from None
+    own_duration_s = horizon / control_hz
+    if dataset.get("duration_s") is None:
+        dataset = {**dataset, "duration_s": own_duration_s}
+    preset, name = recording(dataset), dataset.get("name")
     if horizon != int(round(preset.duration_s * control_hz)):
         raise GenerationError(f"dataset.duration_s = {preset.duration_s:g} s (dataset={name}) does not apply to "
                               f"demo.waypoints={waypoints}, which sets its own timing ({horizon} steps at "
-                              f"{control_hz:g} Hz); pass dataset.duration_s={horizon / control_hz:g} to record it "
-                              "as it is")
+                              f"{control_hz:g} Hz); pass dataset.duration_s={own_duration_s:g} (or null) to record "
+                              "it as it is")
     grid = spec.bowl.hfield_res
     if preset.bowl_grid is not None and grid != preset.bowl_grid:
         raise GenerationError(f"demo.bowl has a {grid} x {grid} heightfield grid, but dataset={name} records its "
                               f"demos on a {preset.bowl_grid} x {preset.bowl_grid} grid (dataset.bowl.hfield_res); "
                               f"give the waypoint demo a bowl on that grid (hfield_res: {preset.bowl_grid})")
+    return own_duration_s
 
 
 def check_demos(jobs: Sequence[DemoJob], control_hz: float, stiffness: dict[str, Any]) -> None:
