@@ -282,3 +282,27 @@ def test_a_leading_demonstrator_applies_to_a_waypoint_demo(tmp_path: Path) -> No
     assert led.to_dict()["lead"] is True
     sim = Simulator(embodiment="tool", bowl=plain.bowl, control_hz=20.0, seed=0)
     assert not np.allclose(sim.record_demo(plain).x_demo, sim.record_demo(led).x_demo)
+
+
+def test_retiming_a_waypoint_file_as_the_recording_warning_advises_silences_it(tmp_path: Path) -> None:
+    """A 10 s file against a model of 12 s demos (240 steps at 20 Hz): the advice names the span that gives
+    240 steps, and a file retimed to exactly that span is recorded as the model's demos were."""
+    import re
+
+    from dcm.tuning.checks import recording_mismatch
+
+    contact = REPO / "models/dcm_diverse_contact.ckpt"  # 12 s demos with a leading demonstrator
+
+    def file_spanning(span_s: float) -> DemoSpec:
+        t = np.linspace(0.0, span_s, 11)
+        csv = tmp_path / "path.csv"
+        csv.write_text("t,x,y,press\n" + "".join(f"{ti:.6g},{0.05 * np.cos(ti):.5f},{0.05 * np.sin(ti):.5f},0.008\n"
+                                                 for ti in t))
+        return DemoSpec(family="waypoints", waypoints=str(csv), lead=True)
+
+    message = recording_mismatch(contact, file_spanning(10.0))
+    advised = re.search(r"retime \S+ to span ([0-9.]+) s \(240 steps at 20 Hz", message)
+    assert advised, message
+    retimed = file_spanning(float(advised.group(1)))
+    assert retimed.horizon(20.0) == 240
+    assert recording_mismatch(contact, retimed) is None

@@ -353,7 +353,7 @@ def test_the_recording_warning_of_a_waypoint_demo_names_the_file_s_own_duration(
     spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "bowl": "medium", "lead": True})
     message = recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", spec, control_hz=20.0)
     assert "this skill's demo: 10 s demos with a leading demonstrator" in message
-    assert f"retime {csv} to span 12 s" in message and "demo.duration_s" not in message
+    assert f"retime {csv} to span 11.95 s (240 steps at 20 Hz" in message and "demo.duration_s" not in message
     csv.write_text("t,x,y,press\n0,0.0,0.0,0.01\n5,0.03,0.0,0.01\n11.95,0.03,0.03,0.01\n")  # 240 steps: 12 s
     spec = DemoSpec.from_dict({"family": "waypoints", "waypoints": str(csv), "bowl": "medium", "lead": True})
     assert recording_mismatch(REPO / "models/dcm_diverse_contact.ckpt", spec, control_hz=20.0) is None

@@ -93,6 +93,17 @@ class WaypointOutsideBowlError(WaypointFileError, PathOutsideBowlError):
     """A waypoint row lies outside the bowl's rim."""
 
 
+def waypoint_horizon(span_s: float, control_hz: float) -> int:
+    """Steps H of a waypoint file spanning ``span_s``: its first row is step 0 and its last row step H - 1."""
+    return int(math.floor(span_s * control_hz + 1e-9)) + 1
+
+
+def waypoint_span_s(horizon: int, control_hz: float) -> float:
+    """The span t_last - t_first a waypoint file needs to give ``horizon`` steps (the inverse of
+    :func:`waypoint_horizon`): a 12 s demo of 240 steps at 20 Hz is a file spanning 11.95 s."""
+    return (int(horizon) - 1) / control_hz
+
+
 def _smooth_progress(s: np.ndarray) -> np.ndarray:
     """Cycloidal 0 -> 1 progress with zero velocity at both ends (no jerk at start and stop)."""
     s = np.clip(s, 0.0, 1.0)
@@ -394,7 +405,7 @@ class DemoSpec:
                     f"the bowl (rim radius {rim:g} m, shape {self.bowl.shape})"
                 )
             t_rel = table[:, 0] - table[0, 0]
-            horizon = int(math.floor(t_rel[-1] * control_hz + 1e-9)) + 1
+            horizon = waypoint_horizon(t_rel[-1], control_hz)
             if horizon < MIN_WAYPOINT_ROWS:
                 raise WaypointFileError(f"{self.waypoints}: spans {t_rel[-1]:g} s, shorter than one control period")
             t = np.arange(horizon) * dt

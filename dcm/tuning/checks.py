@@ -237,14 +237,17 @@ def recording_mismatch(ckpt: Any, spec: Any, control_hz: float = 20.0) -> str | 
     its own duration: it matches when it gives the training demos' step count at ``control_hz``."""
     from dcm.data.recording import Recording
     from dcm.models.predict import trained_on, trained_recording
+    from dcm.sim.demos import waypoint_span_s
 
     trained = trained_recording(ckpt)
     if trained is None:
         return None
     fixes = []
     if spec.family == "waypoints":
-        if spec.horizon(control_hz) != round(trained.duration_s * control_hz):
-            fixes.append(f"retime {spec.waypoints} to span {trained.duration_s:g} s")
+        trained_horizon = round(trained.duration_s * control_hz)
+        if spec.horizon(control_hz) != trained_horizon:
+            fixes.append(f"retime {spec.waypoints} to span {waypoint_span_s(trained_horizon, control_hz):g} s "
+                         f"({trained_horizon} steps at {control_hz:g} Hz, the last row at step {trained_horizon - 1})")
     elif float(spec.duration_s) != trained.duration_s:
         fixes.append(f"demo.duration_s={trained.duration_s:g}")
     if bool(spec.lead) != trained.lead:
