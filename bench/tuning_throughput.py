@@ -62,7 +62,7 @@ def main() -> None:
     from dcm.sim.rollout import Simulator
     from dcm.tuning.objectives import ModelObjective, Skill
     from dcm.tuning.optimize import LoopTimes, optimize
-    from dcm.tuning.run import use_sampler
+    from dcm.tuning.predictor import use_sampler
 
     if args.threads:
         torch.set_num_threads(args.threads)

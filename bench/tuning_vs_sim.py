@@ -57,12 +57,13 @@ def parse_row(text: str) -> tuple[str, list[str]]:
 
 def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space: Any) -> dict[str, float]:
     """One robot-free search of ``cfg.robot_free.n_trials`` virtual trials, as ``tune`` runs it, timed."""
-    from dcm.cli import resolve_device
+    from dcm.devices import resolve_device
     from dcm.models.predict import describe
     from dcm.search import make_search
     from dcm.tuning.objectives import ModelObjective
     from dcm.tuning.optimize import LoopTimes, optimize
-    from dcm.tuning.run import free_search_options, load_predictor
+    from dcm.tuning.predictor import load_predictor
+    from dcm.tuning.setup import free_search_options
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the quickstart's recording warning, not a timing
@@ -115,7 +116,7 @@ def main() -> None:
     import torch
 
     from dcm.tuning.checks import check_config
-    from dcm.tuning.run import record_skill
+    from dcm.tuning.setup import record_skill
 
     torch.set_num_threads(args.threads)
     common = [f"robot_free.n_trials={args.trials}", f"torch_threads={args.threads}", *args.overrides]

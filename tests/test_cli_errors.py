@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from dcm.cli import error_line, print_error
+from dcm.console import error_line, print_error
 
 
 def test_a_message_over_several_lines_is_printed_as_one(capsys: pytest.CaptureFixture[str]) -> None:

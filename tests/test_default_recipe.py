@@ -13,7 +13,7 @@ import torch
 import yaml
 from hydra import compose, initialize_config_dir
 
-from dcm.cli import config_diff
+from dcm.configs import config_diff
 from dcm.training.train import LEGACY_DATA_KEYS, planned_config, with_added_option_defaults
 
 REPO = Path(__file__).resolve().parents[1]

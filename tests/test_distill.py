@@ -44,7 +44,7 @@ def test_the_student_samples_in_one_call_and_keeps_a_spread(student: Path, tiny_
 
 def test_the_student_keeps_its_sampler(student: Path, tiny_checkpoint: Path) -> None:
     from dcm.tuning.checks import TuneConfigError
-    from dcm.tuning.run import use_sampler
+    from dcm.tuning.predictor import use_sampler
 
     model = load_model(student)
     with pytest.raises(ValueError, match="one-step student"):

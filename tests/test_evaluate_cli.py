@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from test_models_synthetic import write_synthetic_dataset
 
-from dcm.cli import QUIET_LOGGERS
+from dcm.console import QUIET_LOGGERS
 from dcm.evaluate import main as evaluate_main
 
 
@@ -29,7 +29,11 @@ def test_the_table_goes_to_stdout_and_no_file_is_written_unasked(
     lines = captured.out.splitlines()
     assert lines[0] == "n=3 trajectories, 3 skills (test split)"
     assert lines[1].split()[:3] == ["predictor", "R_within", "90%"]
-    assert lines[2].split()[0] == "copy_demo" and len(lines) == 3
+    assert lines[2].split()[0] == "copy_demo"
+    assert "nan" not in lines[2] and lines[2].count("n/a") == 6  # one trial per skill; copy_demo ranks no L_task
+    assert lines[3:] == ["n/a: R_within, 90% interval, Spearman: needs >= 3 trials per skill; this split has 1",
+                         "n/a: top3_regret: needs >= 4 trials per skill; this split has 1",
+                         "n/a: R_pooled: the predicted or the true L_task is constant"]
     assert "predictor" not in captured.err and result["n"] == 3
 
 
@@ -104,3 +108,17 @@ def test_a_bad_number_is_one_line_naming_its_key(synthetic: Path, setting: str, 
     with pytest.raises(SystemExit) as exit_info:
         evaluate_main(["ckpt=copy_demo", f"dataset={synthetic}", "split=test", setting])
     assert str(exit_info.value) == f"error: {message}"
+
+
+def test_a_file_that_records_no_phase_count_fits_the_ridge_on_n_phases(synthetic: Path) -> None:
+    """Imported robot logs record no phase_stiffness_Npm: the ridge is skipped with the setting that fits it."""
+    from dcm.data.datamodule import TrajectoryDataset
+    from dcm.data.schema import load_dataset
+    from dcm.evaluate import reference_scores
+
+    loaded = load_dataset(synthetic, split="test")
+    test = TrajectoryDataset.from_loaded(loaded)
+    skipped = reference_scores(synthetic, test, loaded.demo_ids, None)["stiffness_ridge"]
+    assert "pass n_phases=<the phases of their stiffness schedules> or reference=<json>" in skipped["skipped"]
+    fitted = reference_scores(synthetic, test, loaded.demo_ids, None, n_phases=2)["stiffness_ridge"]
+    assert "skipped" not in fitted and fitted["n_phases"] == 2 and "L_task_mae_N" in fitted

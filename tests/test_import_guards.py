@@ -66,7 +66,7 @@ def test_library_chatter_is_hushed(tmp_path: Path) -> None:
     import numpy as np
     from test_data_import import write_episode
 
-    from dcm.cli import QUIET_LOGGERS
+    from dcm.console import QUIET_LOGGERS
     from dcm.data.import_logs import main
 
     write_episode(tmp_path / "logs", "episode_0", np.random.default_rng(0))

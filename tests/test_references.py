@@ -223,7 +223,7 @@ def test_a_prior_blend_ranks_between_the_model_and_the_ridge(baseline_ckpt: Path
 def test_fit_hushes_library_chatter(tmp_path: Path) -> None:
     import logging
 
-    from dcm.cli import QUIET_LOGGERS
+    from dcm.console import QUIET_LOGGERS
 
     data = write_synthetic_dataset(tmp_path / "synth.h5", n_train=6, n_valid=3, n_test=3)
     for name in QUIET_LOGGERS:

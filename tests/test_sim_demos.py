@@ -289,7 +289,7 @@ def test_retiming_a_waypoint_file_as_the_recording_warning_advises_silences_it(t
     240 steps, and a file retimed to exactly that span is recorded as the model's demos were."""
     import re
 
-    from dcm.tuning.checks import recording_mismatch
+    from dcm.tuning.diagnostics import recording_mismatch
 
     contact = REPO / "models/dcm_diverse_contact.ckpt"  # 12 s demos with a leading demonstrator
 

@@ -108,3 +108,34 @@ def test_a_trial_that_diverged_in_the_simulator_is_imported_as_failed(tmp_path: 
     assert by_episode["episode_001"]["L_task"] == float("inf")
     train = load_dataset(tmp_path / "observed.h5", split="train")
     assert [m["episode"] for m in train.meta] == ["episode_000"]
+
+
+def test_random_trials_split_a_fifth_each_to_valid_and_test(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """20 trials give valid and test 4 each, as many as every ranking metric needs; 5 give 1 each and say so."""
+    import json
+
+    from dcm.data.sim_logs import RANKING_TRIALS
+    from dcm.models.metrics import REGRET_TRIALS
+
+    assert RANKING_TRIALS == REGRET_TRIALS  # the copy this command keeps to load without torch
+    for trials, counts in ((20, {"train": 12, "valid": 4, "test": 4}), (5, {"train": 3, "valid": 1, "test": 1})):
+        out = tmp_path / f"logs{trials}"
+        assert main(["--trials", str(trials), "--duration-s", "1", "--out", str(out)]) == 0
+        splits = [json.loads((episode / "meta.json").read_text())["split"] for episode in sorted(out.iterdir())]
+        assert {split: splits.count(split) for split in set(splits)} == counts
+        assert splits == sorted(splits, key=["train", "valid", "test"].index)  # the last trials are held out
+        note = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note:")]
+        assert note == ([] if trials == 20 else [
+            "note: valid and test get 1 trial(s) each; the ranking metrics (R within skill, top-3 regret) need >= 4 "
+            "trials of a skill per split: --trials 18 gives 4 each"])
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "csv"])
+def test_a_bag_storage_for_a_format_without_one_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                           fmt: str) -> None:
+    out = tmp_path / "logs"
+    assert main(["--format", fmt, "--storage", "mcap", "--trials", "1", "--duration-s", "1", "--out", str(out)]) == 1
+    assert capsys.readouterr().err == (f"error: --storage mcap: the storage of a ROS 2 bag (sqlite3, mcap); --format "
+                                       f"{fmt} has none: drop --storage or use --format ros2\n")
+    assert not out.exists() and not list(tmp_path.iterdir())

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from dcm.cli import DeviceError, JSONFileError, check_accelerator, config_diff, load_json, resolve_device
+from dcm.configs import JSONFileError, config_diff, load_json
+from dcm.devices import DeviceError, check_accelerator, resolve_device
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = ["trainer=fast", "trainer.max_epochs=1", "net.d_model=32", "net.n_layers=1", "net.n_heads=2",
@@ -113,7 +114,7 @@ def test_an_absent_gpu_fails_in_one_line(tiny_dataset_path: Path, tmp_path: Path
     assert "needs init_from" in line  # a TrainConfigError, in one line
 
 
-# ----------------------------------------------------------------------------------------------- dcm.cli
+# ------------------------------------------------------------------------------------------- dcm.devices
 @pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
 def test_resolve_device_names_the_option() -> None:
     assert resolve_device("auto").type in ("cpu", "mps")
@@ -149,3 +150,35 @@ def test_config_diff() -> None:
     assert config_diff(old, new, ignore=("out",)) == ['seed: 0 -> 3', 'skills: None -> ["spiral"]',
                                                        "stiffness.n_phases: 3 -> 4"]
     assert config_diff(old, old) == []
+
+
+def test_an_epoch_count_lightning_cannot_run_fails_in_one_line(tmp_path: Path) -> None:
+    """max_epochs=0 would exit 0 with no checkpoint; the run's folder keeps only its log, which says why."""
+    run = tmp_path / "run"
+    line = _error_line(_train(["trainer.max_epochs=0", f"hydra.run.dir={run}"], cwd=tmp_path))
+    assert line.startswith("error: trainer.max_epochs = 0 must be an integer >= 1")
+    assert not (run / "checkpoints").exists() and line in (run / "train.log").read_text()
+
+
+@pytest.mark.parametrize(("trainer", "message"), [
+    ({"max_epochs": -2}, "trainer.max_epochs = -2 must be an integer >= 1, or -1 (no limit: until trainer.max_time)"),
+    ({"max_epochs": 2.5}, "trainer.max_epochs = 2.5 must be an integer >= 1"),
+    ({"check_val_every_n_epoch": 0}, "trainer.check_val_every_n_epoch = 0 must be an integer >= 1"),
+    ({"max_epochs": 3, "check_val_every_n_epoch": 4},
+     "trainer.max_epochs=3 ends before the first validation (trainer.check_val_every_n_epoch=4)"),
+])
+def test_trainer_settings_are_checked_before_anything_is_built(trainer: dict, message: str) -> None:
+    from dcm.training.checks import TrainConfigError, check_trainer
+
+    with pytest.raises(TrainConfigError) as err:
+        check_trainer(trainer, "val/R_within")
+    assert str(err.value).startswith(message)
+
+
+def test_trainer_settings_lightning_takes_pass() -> None:
+    from dcm.training.checks import check_trainer
+
+    for trainer in ({"max_epochs": -1}, {"max_epochs": 4, "check_val_every_n_epoch": 4},
+                    {"check_val_every_n_epoch": None, "max_epochs": 1}, {"min_epochs": None}):
+        check_trainer(trainer, "val/R_within")
+    check_trainer({"max_epochs": 3, "check_val_every_n_epoch": 4}, "train/loss")  # selects without validating

@@ -17,10 +17,13 @@ from dcm.control import damping_from_stiffness, damping_mass
 from dcm.data.schema import write_dataset
 from dcm.tuning.checks import TuneConfigError, check_config
 from dcm.tuning.loop import resume_config
+from dcm.tuning.loop_state import LoopState
+from dcm.tuning.objectives import OBSERVED_BATCH, PLOT_BATCH, SEARCH_TRIALS_LIMIT, round_batch
 from dcm.tuning.observations import ObservationMismatch
 from dcm.tuning.robot import SimulatorRobot, trial_record
-from dcm.tuning.run import record_skill, tune
+from dcm.tuning.run import tune
 from dcm.tuning.schedule_files import SCHEDULE_COLUMNS
+from dcm.tuning.setup import record_skill
 from tests.conftest import short_wave_demo
 
 REPO = Path(__file__).resolve().parents[1]
@@ -65,6 +68,7 @@ def test_the_simulator_robot_runs_rounds_until_the_budget_and_the_same_seed_give
     assert loop["observed"]["hypervolume"] >= loop["rounds"][0]["hypervolume_observed"] >= 0.0
     assert loop["rounds"][1]["correction"]["kind"] == "gp"
     state = json.loads((tmp_path / "a/loop/state.json").read_text())
+    assert LoopState.from_json(state).to_json() == state  # loop/state.json keeps the format older loops wrote
     first, second = (np.asarray(r["proposals"]) for r in state["rounds"])
     assert not any(np.allclose(k, seen) for k in second for seen in first)  # no schedule is run twice
     for name in ("loop.json", "loop/state.json", "proposals/round_2/round.yaml", "proposals/round_2/p01.csv"):
@@ -159,3 +163,15 @@ def test_loop_settings_are_checked_naming_the_key(tiny_checkpoint: Path, tmp_pat
                             ("observations=x.h5", "needs resume")):
         with pytest.raises(TuneConfigError, match=match):
             check_config(_config(tiny_checkpoint, demo, tmp_path, override))
+
+
+def test_the_loop_s_model_seeds_share_batch_seed_s_index_space_without_colliding():
+    """Round r's search, the re-prediction of unproposed trials and the figure's prediction are seeded like batches
+    no search's own trials reach, and apart from each other."""
+    searches = (0, SEARCH_TRIALS_LIMIT - 1)
+    rounds = [round_batch(r, first) for r in (2, 3) for first in searches]
+    offsets = [*rounds, OBSERVED_BATCH, PLOT_BATCH]
+    assert len(set(offsets)) == len(offsets) and min(offsets) >= SEARCH_TRIALS_LIMIT
+    assert round_batch(2, SEARCH_TRIALS_LIMIT - 1) < round_batch(3, 0)
+    with pytest.raises(ValueError, match="outside"):
+        round_batch(2, SEARCH_TRIALS_LIMIT)

@@ -5,7 +5,7 @@ import pytest
 
 from dcm.search import SearchSpace, make_search
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch, optimize
-from dcm.tuning.run import pick_spread
+from dcm.tuning.pareto import pick_spread
 
 SPACE = SearchSpace(n_phases=2, min_Npm=100.0, max_Npm=1500.0)
 

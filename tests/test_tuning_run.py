@@ -17,10 +17,14 @@ from omegaconf import OmegaConf
 from dcm.models.checkpoint import CARD_KEY, checkpoint_card, read_checkpoint
 from dcm.models.predict import load_model
 from dcm.sim.demos import DemoSpec
-from dcm.tuning.checks import TuneConfigError, check_config, recording_mismatch
+from dcm.tuning.checks import TuneConfigError, check_config
+from dcm.tuning.cli import summary_lines
+from dcm.tuning.diagnostics import recording_mismatch
 from dcm.tuning.objectives import SimulatorObjective, batch_seed
 from dcm.tuning.optimize import TrialLog, TrialLogMismatch
-from dcm.tuning.run import record_skill, tune, use_sampler
+from dcm.tuning.predictor import use_sampler
+from dcm.tuning.run import tune
+from dcm.tuning.setup import record_skill
 from tests.conftest import short_wave_demo
 
 REPO = Path(__file__).resolve().parents[1]
@@ -37,9 +41,10 @@ def _config(ckpt: Path, demo: Path, out_dir: Path, robot_free_trials: int, *extr
 
 
 def _numbers(results: dict) -> dict:
-    """results.json without its timings."""
+    """results.json without what depends on the invocation: its timings, and how many trials it replayed."""
     if isinstance(results, dict):
-        return {k: _numbers(v) for k, v in results.items() if "seconds" not in k}
+        return {k: _numbers(v) for k, v in results.items()
+                if "seconds" not in k and k not in ("n_replayed", "n_computed")}
     if isinstance(results, list):
         return [_numbers(v) for v in results]
     return results
@@ -70,6 +75,23 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
     assert second["robot_free"]["n_virtual_trials"] == 24
     np.testing.assert_array_equal(extended[:16], logged)
     assert json.loads((out_dir / "results.json").read_text())["robot_free"]["n_virtual_trials"] == 24
+    assert (first["robot_free"]["n_replayed"], first["robot_free"]["n_computed"]) == (0, 16)
+    assert (second["robot_free"]["n_replayed"], second["robot_free"]["n_computed"]) == (16, 8)
+    assert (second["robot_based"]["n_replayed"], second["robot_based"]["n_computed"]) == (5, 0)
+
+    # A re-run into the finished run directory replays every trial: its printout says so and reports the model
+    # time of the trials it computed (none), not a speed of the whole search.
+    replayed = tune(_config(tiny_checkpoint, demo, out_dir, 24, *DDPM), out_dir)
+    assert (replayed["robot_free"]["n_replayed"], replayed["robot_free"]["n_computed"]) == (24, 0)
+    assert replayed["robot_free"]["seconds_model"] == 0.0 and _numbers(replayed) == _numbers(second)
+    assert json.loads((out_dir / "results.json").read_text())["robot_free"]["n_replayed"] == 24
+    printed = summary_lines(replayed)
+    assert "robot-free: 24 virtual trials (24 replayed from the run directory's log, 0 computed) in " in printed[1]
+    assert "robot-based: 5 simulated trials (5 replayed from the run directory's log, 0 computed) in " in printed[-1]
+    assert "x the time of a virtual trial" not in printed[-1]
+    fresh = summary_lines(first)
+    assert fresh[1].startswith("robot-free: 16 virtual trials in ") and "replayed" not in " ".join(fresh)
+    assert "x the time of a virtual trial" in fresh[-1]
 
     # The same seed twice gives the same numbers, and the killed-and-resumed run (16, then 24 trials) gives
     # those of an uninterrupted 24-trial run: the DCM's samples are seeded per batch.
@@ -82,18 +104,19 @@ def test_tune_validates_the_predicted_front_and_resumes(tiny_checkpoint: Path, t
     assert uninterrupted[0]["predictor"]["sampler"] == "ddpm" and uninterrupted[0]["predictor"]["T"] == 5
 
 
-@pytest.mark.parametrize("precision", ["auto", "bfloat16"])
+@pytest.mark.parametrize("precision", [None, "bfloat16"])
 def test_the_default_robot_free_search_gives_the_same_results_for_the_same_seed(tiny_checkpoint: Path,
-                                                                               tmp_path: Path, precision: str):
-    """conf/tune.yaml's robot-free defaults (a few DDIM steps, one MOTPE fit per batch, bfloat16 where native)
-    give the same results.json for the same seed, and a killed-and-resumed run those of an uninterrupted one."""
+                                                                               tmp_path: Path, precision: str | None):
+    """conf/tune.yaml's robot-free defaults (a few DDIM steps, one MOTPE fit per batch, float32), and bfloat16
+    when asked, give the same results.json for the same seed, and a killed-and-resumed run those of an
+    uninterrupted one; results.json names the precision."""
     demo = short_wave_demo(tmp_path)
-    extra = (f"robot_free.precision={precision}", "robot_based.n_trials=0")
+    extra = ("robot_based.n_trials=0", *([f"robot_free.precision={precision}"] if precision else []))
     runs = [tune(_config(tiny_checkpoint, demo, tmp_path / name, 24, *extra), tmp_path / name) for name in "ab"]
     assert _numbers(runs[0]) == _numbers(runs[1])
     assert runs[0]["predictor"]["sampling_steps"] == 5
-    if precision == "bfloat16":
-        assert runs[0]["predictor"]["precision"] == "bfloat16"
+    assert runs[0]["robot_free"]["precision"] == (precision or "float32")
+    assert runs[0]["predictor"].get("precision", "float32") == (precision or "float32")
     tune(_config(tiny_checkpoint, demo, tmp_path / "resumed", 16, *extra), tmp_path / "resumed")
     resumed = tune(_config(tiny_checkpoint, demo, tmp_path / "resumed", 24, *extra), tmp_path / "resumed")
     assert _numbers(resumed) == _numbers(runs[0])
@@ -242,6 +265,28 @@ def test_the_demo_config_tunes_a_path_family_the_shipped_dcm_never_trained_on():
     assert cfg.robot_free.n_trials == 1000 and cfg.robot_based.n_trials > 0
 
 
+def test_the_demo_s_robot_free_search_gives_the_readme_s_figures_under_the_default_precision(tmp_path: Path):
+    """`make demo`'s robot-free hypervolume and predicted -> validated pairs are the figures README.md prints, on
+    any CPU: float32 is the default precision (bfloat16, where the CPU has it, gives others)."""
+    import re
+
+    from dcm.shipped import with_shipped_paths
+
+    readme = (REPO / "README.md").read_text()
+    quoted_hypervolume = float(re.search(r"robot-free: 1000 virtual trials .* hypervolume ([0-9.]+)", readme)[1])
+    pairs = re.search(r"robot-free L_task predicted -> validated \[N\]: (.*?);", readme)[1]
+    quoted_pairs = [tuple(float(v) for v in pair.split(" -> ")) for pair in pairs.split(", ")]
+    with initialize_config_dir(config_dir=str(REPO / "conf")):
+        cfg = compose("quickstart", overrides=[f"out_dir={tmp_path}", "robot_based.n_trials=0"])
+    assert cfg.robot_free.precision == "float32"
+    free = tune(with_shipped_paths(cfg), tmp_path)["robot_free"]
+    assert free["precision"] == "float32"
+    assert f"{free['hypervolume']:.4g}" == f"{quoted_hypervolume:.4g}"
+    prediction = free["prediction"]
+    assert [(float(f"{p:.3g}"), float(f"{r:.3g}")) for p, r in zip(prediction["predicted_L_task_N"],
+                                                                     prediction["realised_L_task_N"])] == quoted_pairs
+
+
 def test_tune_names_the_overrides_when_the_demo_is_recorded_otherwise_than_the_training_demos(
         tiny_checkpoint: Path):
     spec = yaml.safe_load((REPO / "data/demos/wavelike.yaml").read_text())
@@ -332,8 +377,7 @@ def test_a_prior_blends_the_tuners_model_with_the_stiffness_ridge(tiny_checkpoin
               np.repeat(recorded.force_demo[None], len(phases), axis=0),
               np.stack([simulator.attractor(recorded, k) for k in stiffness]), stiffness)
     model = load_model(tiny_checkpoint)
-    use_sampler(model, "ddim", 5)  # as _config samples
-    model.set_precision("auto")
+    use_sampler(model, "ddim", 5)  # as _config samples, in the default float32
     blend = with_prior(model, ref, 0.5, "test")
     assert blend.combine(np.array([4.0]), np.array([1.0])) == pytest.approx([2.0])  # the geometric mean
     first = 8  # robot_free.batch_size: the first batch, seeded as the tuner seeds it
@@ -371,7 +415,7 @@ def test_the_reference_point_depends_on_the_skill_alone(tiny_checkpoint: Path, t
     assert first == second and first["source"] == "skill"
     assert runs[0]["robot_free"]["solutions"] != runs[1]["robot_free"]["solutions"]  # the searches differed
 
-    from dcm.tuning.run import REFERENCE_COMP_FACTOR, REFERENCE_TASK_FACTOR
+    from dcm.tuning.setup import REFERENCE_COMP_FACTOR, REFERENCE_TASK_FACTOR
 
     cfg = _config(tiny_checkpoint, demo, tmp_path / "seed0", 8, "domain=realistic")
     simulator, recorded, skill = record_skill(cfg, check_config(cfg))
@@ -405,7 +449,7 @@ def _shipped_config(tmp_path: Path, *extra: str):
 
 
 def test_the_tuner_warns_where_the_skill_conditions_the_model_outside_its_training_range(tmp_path: Path):
-    from dcm.tuning.checks import ConditioningRangeWarning
+    from dcm.tuning.diagnostics import ConditioningRangeWarning
 
     cfg = _shipped_config(tmp_path, "demo=waypoints", f"demo.waypoints={_deep_path(tmp_path)}")
     with pytest.warns(ConditioningRangeWarning) as caught:
@@ -424,7 +468,7 @@ def test_the_tuner_warns_where_the_skill_conditions_the_model_outside_its_traini
 def test_a_skill_like_the_training_demos_conditions_the_model_inside_its_range(tmp_path: Path):
     import warnings
 
-    from dcm.tuning.checks import ConditioningRangeWarning
+    from dcm.tuning.diagnostics import ConditioningRangeWarning
 
     cfg = _shipped_config(tmp_path, f"demo_file={short_wave_demo(tmp_path, duration_s=12.0, approach_s=1.0, lead=True)}")
     with warnings.catch_warnings():
@@ -438,7 +482,7 @@ def test_predicted_and_realised_L_task_of_the_validated_solutions_are_reported(t
     """After validation the run says how far the model's L_task was from the simulator's on its own picks, and
     warns when that error exceeds the documented limit: a multiple of the error its card records on the valid
     split, else an absolute tolerance."""
-    from dcm.tuning import checks
+    from dcm.tuning import diagnostics as checks
 
     demo, out_dir = short_wave_demo(tmp_path), tmp_path / "run"
     monkeypatch.setattr(checks, "PREDICTION_TOLERANCE_N", 1e-9)  # any error exceeds it

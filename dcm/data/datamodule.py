@@ -5,7 +5,9 @@ Batches are dicts of raw, un-normalised float32 tensors in physical units:
 * ``cond``   (B, H, 24): per-step conditions ``x_demo(6) | F_demo(6) | x_attr(6) | K(6)`` —
   pose [m, rad] in the bowl frame, wrench [N, N·m], attractor pose [m, rad], stiffness diagonal [N/m, N·m/rad]
   (channel names: :func:`dcm.data.schema.cond_channel_names`);
-* ``target`` (B, H, 6): the observed contact wrench ``F_obs`` [N, N·m];
+* ``target`` (B, H, C): the observed contact wrench ``F_obs`` [N, N·m] and, for a model that predicts the pose
+  (``target_fields=force_and_pose``), the realised translation ``x_obs - x_demo`` [m]
+  (:class:`dcm.data.schema.TargetLayout`);
 * ``skill``  (B,): the trial's ``demo_id`` (-1 where the file has none), the skill whose schedules the tuner ranks.
 
 Normalisation to [-1, 1] lives in the model (its statistics come from :meth:`DCMDataModule.train_arrays`),
@@ -25,12 +27,13 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from dcm.data.schema import (
     CHANNELS,
     COND_FIELDS,
-    TARGET_FIELD,
+    FORCE_LAYOUT,
     DatasetMismatchError,
     LoadedDataset,
+    TargetLayout,
     cond_channel_names,
     load_dataset,
-    target_channel_names,
+    target_layout,
 )
 
 STAGES = ("pretrain", "finetune")
@@ -45,36 +48,43 @@ def stack_conditions(arrays: dict[str, np.ndarray]) -> np.ndarray:
     return np.concatenate([np.asarray(arrays[f], dtype=np.float32) for f in COND_FIELDS], axis=-1)
 
 
-def dataset_channels(dataset: LoadedDataset) -> tuple[list[str], list[str]]:
-    """The condition/target channel names a dataset file declares (from its ``channels`` attribute)."""
+def dataset_channels(dataset: LoadedDataset, target_fields: str = "force") -> tuple[list[str], list[str]]:
+    """The condition/target channel names a dataset file declares (from its ``channels`` attribute), the target
+    as a model of ``target_fields`` reads it."""
     declared = dataset.attrs.get("channels") or CHANNELS
     if not isinstance(declared, dict):
         raise DataModuleError(f"{dataset.path}: root attribute 'channels' is not a mapping: {declared!r}")
     cond = [f"{f}.{c}" for f in COND_FIELDS for c in declared.get(f, [])]
-    target = [f"{TARGET_FIELD}.{c}" for c in declared.get(TARGET_FIELD, [])]
-    return cond, target
+    return cond, target_layout(target_fields, declared).channel_names()
 
 
 class TrajectoryDataset(Dataset):
-    """(cond, target, skill) of whole trajectories, already stacked as tensors."""
+    """(cond, target, skill) of whole trajectories, already stacked as tensors; ``layout`` says what the
+    target's channels are."""
 
     def __init__(self, cond: np.ndarray, target: np.ndarray, names: list[str], L_task: np.ndarray,
-                 skills: np.ndarray | None = None) -> None:
+                 skills: np.ndarray | None = None, layout: TargetLayout = FORCE_LAYOUT) -> None:
         self.cond = torch.as_tensor(cond, dtype=torch.float32)
         self.target = torch.as_tensor(target, dtype=torch.float32)
+        if self.target.shape[-1] != layout.width:
+            raise DataModuleError(f"targets have {self.target.shape[-1]} channels, the {layout.target_fields} "
+                                  f"layout {layout.width}")
+        self.layout = layout
         self.names = list(names)
         self.L_task = np.asarray(L_task, dtype=np.float64)
         self.skills = torch.as_tensor(np.full(len(self.names), -1) if skills is None else skills, dtype=torch.long)
 
     @classmethod
-    def from_loaded(cls, dataset: LoadedDataset, index: np.ndarray | None = None) -> "TrajectoryDataset":
+    def from_loaded(cls, dataset: LoadedDataset, index: np.ndarray | None = None,
+                    layout: TargetLayout = FORCE_LAYOUT) -> TrajectoryDataset:
+        """The trajectories (``index``: only those) with the target ``layout`` gives (default: F_obs)."""
         cond = stack_conditions(dataset.arrays)
-        target = np.asarray(dataset.arrays[TARGET_FIELD], dtype=np.float32)
+        target = layout.from_arrays(dataset.arrays)
         names, L_task, skills = dataset.names, dataset.L_task, dataset.demo_ids
         if index is not None:
             cond, target, L_task, skills = cond[index], target[index], L_task[index], skills[index]
             names = [names[i] for i in index]
-        return cls(cond, target, names, L_task, skills)
+        return cls(cond, target, names, L_task, skills, layout)
 
     def __len__(self) -> int:
         return self.cond.shape[0]
@@ -82,12 +92,12 @@ class TrajectoryDataset(Dataset):
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         return {"cond": self.cond[i], "target": self.target[i], "skill": self.skills[i]}
 
-    def subset(self, n: int | None) -> "TrajectoryDataset":
+    def subset(self, n: int | None) -> TrajectoryDataset:
         """The first ``n`` trajectories (all when ``n`` is None or larger): a fixed evaluation set."""
         if n is None or n >= len(self):
             return self
         return TrajectoryDataset(self.cond[:n].numpy(), self.target[:n].numpy(), self.names[:n], self.L_task[:n],
-                                 self.skills[:n].numpy())
+                                 self.skills[:n].numpy(), self.layout)
 
 
 class SkillGroupBatchSampler(Sampler[list[int]]):
@@ -147,11 +157,14 @@ class DCMDataModule(L.LightningDataModule):
         skill_group: 0 shuffles the training trials one by one; g > 0 deals them in groups of g trials of one
             skill (:class:`SkillGroupBatchSampler`), which a model trained with ``task_weight`` > 0 needs.
             Single-device only: a distributed sampler does not split these batches.
+        target_fields: the target the model learns (``force``: F_obs | ``force_and_pose``: F_obs and the
+            translation x_obs - x_demo; :class:`dcm.data.schema.TargetLayout`).
     """
 
     def __init__(self, path: str | Path, stage: str = "pretrain", usage_rate: float = 1.0, seed: int = 0,
                  batch_size: int = 64, eval_batch_size: int = 256, num_workers: int = 0,
-                 expect_control_hz: float | None = None, n_eval: int | None = 64, skill_group: int = 0) -> None:
+                 expect_control_hz: float | None = None, n_eval: int | None = 64, skill_group: int = 0,
+                 target_fields: str = "force") -> None:
         super().__init__()
         if stage not in STAGES:
             raise DataModuleError(f"stage must be one of {STAGES}, got {stage!r}")
@@ -164,6 +177,10 @@ class DCMDataModule(L.LightningDataModule):
             raise DataModuleError(f"n_eval must be >= 1 or None, got {n_eval}")
         if not 0 <= int(skill_group) <= int(batch_size):
             raise DataModuleError(f"skill_group must be 0 (off) or in 1..batch_size={batch_size}, got {skill_group}")
+        try:
+            self.layout = target_layout(target_fields)
+        except ValueError as err:
+            raise DataModuleError(str(err)) from None
         self.path = Path(path)
         self.stage = stage
         self.usage_rate = usage_rate
@@ -175,9 +192,12 @@ class DCMDataModule(L.LightningDataModule):
         self.n_eval = None if n_eval is None else int(n_eval)
         self.skill_group = int(skill_group)
         # plain types only, so checkpoints stay loadable with torch.load(weights_only=True)
-        self.save_hyperparameters({"path": str(self.path), "stage": stage, "usage_rate": usage_rate,
-                                   "seed": self.seed, "batch_size": self.batch_size, "n_eval": self.n_eval,
-                                   "expect_control_hz": expect_control_hz, "skill_group": self.skill_group})
+        hparams = {"path": str(self.path), "stage": stage, "usage_rate": usage_rate, "seed": self.seed,
+                   "batch_size": self.batch_size, "n_eval": self.n_eval, "expect_control_hz": expect_control_hz,
+                   "skill_group": self.skill_group}
+        if self.layout.predicts_pose:  # named only when it is not the default, as a force model's were
+            hparams["target_fields"] = self.layout.target_fields
+        self.save_hyperparameters(hparams)
         self.splits: dict[str, TrajectoryDataset] = {}
         self.attrs: dict[str, Any] = {}
         self.cond_channels: list[str] = []
@@ -191,11 +211,12 @@ class DCMDataModule(L.LightningDataModule):
     def _load(self, split: str) -> LoadedDataset:
         dataset = load_dataset(self.path, split=split, expect_control_hz=self.expect_control_hz)
         self.attrs = dataset.attrs
-        self.cond_channels, self.target_channels = dataset_channels(dataset)
-        if self.cond_channels != cond_channel_names() or self.target_channels != target_channel_names():
+        self.cond_channels, self.target_channels = dataset_channels(dataset, self.layout.target_fields)
+        expected = self.layout.channel_names()
+        if self.cond_channels != cond_channel_names() or self.target_channels != expected:
             raise DatasetMismatchError(
                 f"{self.path}: channels {self.cond_channels} -> {self.target_channels} differ from the "
-                f"{cond_channel_names()} -> {target_channel_names()} the models use")
+                f"{cond_channel_names()} -> {expected} the models use")
         return dataset
 
     def usage_index(self, n_total: int) -> np.ndarray:
@@ -212,9 +233,9 @@ class DCMDataModule(L.LightningDataModule):
             loaded = self._load(split)
             if split == "train":
                 self.n_train_total = len(loaded)
-                self.splits[split] = TrajectoryDataset.from_loaded(loaded, self.usage_index(len(loaded)))
+                self.splits[split] = TrajectoryDataset.from_loaded(loaded, self.usage_index(len(loaded)), self.layout)
             else:
-                self.splits[split] = TrajectoryDataset.from_loaded(loaded)
+                self.splits[split] = TrajectoryDataset.from_loaded(loaded, layout=self.layout)
 
     def split(self, name: str) -> TrajectoryDataset:
         if name not in self.splits:
@@ -230,7 +251,7 @@ class DCMDataModule(L.LightningDataModule):
         return float(self.attrs["control_hz"])
 
     def train_arrays(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """The used training trajectories' raw conditions (N,H,24) and targets (N,H,6): what a model fits
+        """The used training trajectories' raw conditions (N,H,24) and targets (N,H,C): what a model fits
         its normalisers on."""
         train = self.split("train")
         return train.cond, train.target
@@ -256,11 +277,24 @@ class DCMDataModule(L.LightningDataModule):
         return DataLoader(train, batch_sampler=sampler, num_workers=self.num_workers,
                           persistent_workers=self.num_workers > 0)
 
+    def _eval_loader(self, dataset: TrajectoryDataset) -> DataLoader:
+        """A valid/test loader. Under DDP each rank gets its own trials, none twice: Lightning's default
+        DistributedSampler repeats trials to even out the shards, which would count them twice in val/loss.
+        A split with fewer trials than ranks keeps the padding, since every rank must log each metric."""
+        if not (torch.distributed.is_available() and torch.distributed.is_initialized()
+                and len(dataset) >= torch.distributed.get_world_size() > 1):
+            return self._loader(dataset, False, self.eval_batch_size)
+        from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
+
+        return DataLoader(dataset, batch_size=self.eval_batch_size, num_workers=self.num_workers,
+                          sampler=UnrepeatedDistributedSampler(dataset, shuffle=False), drop_last=False,
+                          persistent_workers=self.num_workers > 0)
+
     def val_dataloader(self) -> DataLoader:
-        return self._loader(self.split("valid"), False, self.eval_batch_size)
+        return self._eval_loader(self.split("valid"))
 
     def test_dataloader(self) -> DataLoader:
-        return self._loader(self.split("test"), False, self.eval_batch_size)
+        return self._eval_loader(self.split("test"))
 
     def state_dict(self) -> dict[str, Any]:
         return {"path": str(self.path), "stage": self.stage, "usage_rate": self.usage_rate, "seed": self.seed,

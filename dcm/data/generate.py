@@ -31,23 +31,39 @@ from __future__ import annotations
 import os
 import sys
 import time
-from datetime import datetime, timezone
+from collections.abc import Sequence
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
-from dcm.cli import CONF_DIR, print_error, quiet_libraries
-from dcm.data.generate_checks import (GenerationError, build_settings, check_demos, check_embodiment,
-                                      check_run_settings, check_stiffness_settings, check_waypoint_recording,
-                                      existing_output_is_current)
-from dcm.data.generate_workers import (claim_work_dir, finished_jobs, job_fingerprints, mark_work_dir,
-                                       part_files_in, release_work_dir, run_jobs)
+from dcm.configs import CONF_DIR, register_resolvers
+from dcm.console import print_error, quiet_libraries
+from dcm.control.objectives import TaskObjective
+from dcm.data.generate_checks import (
+    GenerationError,
+    build_settings,
+    check_demos,
+    check_embodiment,
+    check_run_settings,
+    check_stiffness_settings,
+    check_waypoint_recording,
+    existing_output_is_current,
+)
+from dcm.data.generate_workers import (
+    claim_work_dir,
+    finished_jobs,
+    job_fingerprints,
+    mark_work_dir,
+    part_files_in,
+    release_work_dir,
+    run_jobs,
+)
 from dcm.data.merge import MergeError, assemble, part_path
 from dcm.data.presets import PresetError, compose_config, fingerprint, plan_demos
 from dcm.data.schema import DatasetError
 from dcm.search import check_budget
+from dcm.shipped import work_root
 from dcm.sim.domain import DomainSpec
-
-REPO_ROOT = CONF_DIR.parent
 
 
 def output_paths(cfg: Any) -> tuple[Path, Path]:
@@ -137,6 +153,7 @@ def generate(cfg: Any) -> Path:
         "domain": DomainSpec.resolve(settings["domain"]).to_dict(),
         "dataset": str(cfg.dataset.name),
         "search": settings["search"]["name"],
+        "objective": TaskObjective.from_dict(settings.get("objective")).to_dict(),
         "seed": int(cfg.seed),
         "config": config,
         "plan_fingerprint": plan,
@@ -144,7 +161,7 @@ def generate(cfg: Any) -> Path:
         "n_trajectories_total": sum(job.n_trials for job in all_jobs),
         "shard_index": shard_index,
         "shard_count": shard_count,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     part_files = [part_path(work_dir, job.index) for job in jobs]
     n = assemble(part_files, out, attrs)
@@ -157,7 +174,7 @@ def generate(cfg: Any) -> Path:
 
 def ensure_dataset(preset: str, path: str | Path | None = None, overrides: Sequence[str] = ()) -> Path:
     """Return the dataset file of a preset, generating it first if it does not exist (default ``data/<preset>.h5``)."""
-    path = Path(path) if path is not None else REPO_ROOT / "data" / f"{preset}.h5"
+    path = Path(path) if path is not None else work_root() / "data" / f"{preset}.h5"
     path = path.resolve()
     if path.exists():
         return path
@@ -179,6 +196,7 @@ def main() -> None:
             print_error(err)
             sys.exit(2)
 
+    register_resolvers()
     run()
 
 

@@ -7,12 +7,14 @@ against the configuration that would overwrite it.
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from dcm.cli import check_integer, check_number, config_diff
+from dcm.configs import check_integer, check_number, config_diff
+from dcm.control.objectives import ObjectiveError, TaskObjective
 from dcm.data.atomic import write_problem
 from dcm.data.presets import DemoJob
 from dcm.data.schema import DatasetError, read_config, read_root_attrs
@@ -37,13 +39,20 @@ def build_settings(cfg: Any) -> dict[str, Any]:
     from omegaconf import OmegaConf
 
     domain = OmegaConf.to_container(cfg.domain, resolve=True) if OmegaConf.is_config(cfg.domain) else cfg.domain
-    return {
+    settings = {
         "embodiment": str(cfg.embodiment),
         "domain": domain,
         "control_hz": float(cfg.control_hz),
         "stiffness": OmegaConf.to_container(cfg.stiffness, resolve=True),
         "search": {"name": str(cfg.search.name), "options": OmegaConf.to_container(cfg.search.options, resolve=True)},
     }
+    try:
+        objective = TaskObjective.from_config(cfg.get("objective"))
+    except ObjectiveError as err:
+        raise GenerationError(str(err)) from None
+    if objective.name != "paper":  # only then: every dataset of the paper's objective keeps its fingerprint
+        settings["objective"] = objective.to_dict()
+    return settings
 
 
 def check_embodiment(name: str) -> None:

@@ -13,12 +13,14 @@ import queue
 import sys
 import threading
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
-from dcm.cli import JSONFileError, load_json
+from dcm.configs import JSONFileError, load_json
+from dcm.control.objectives import TaskObjective
 from dcm.data.atomic import atomic_path
 from dcm.data.generate_checks import GenerationError, differences
 from dcm.data.merge import MergeError, part_path, read_part, write_part
@@ -116,6 +118,7 @@ class DemoRunner:
         from dcm.sim.demos import DemoSpec
 
         stiffness_cfg = self.settings["stiffness"]
+        objective = TaskObjective.from_dict(self.settings.get("objective"))
         spec = DemoSpec.from_dict(job.spec)
         sim = self._simulator(spec.bowl.to_dict(), job.seed)
         demo = sim.record_demo(spec)
@@ -136,13 +139,14 @@ class DemoRunner:
             schedule = schedule_from_phases(phase_stiffness, boundaries, rot_stiffness=stiffness_cfg["rot_Nmprad"])
             trial = sim.rollout(demo, schedule)
             failed = bool(trial.failed)
-            search.tell(None if failed else (float(trial.L_task), float(trial.L_comp)))
+            l_task = objective.trial_task_loss(trial, demo.x_demo, demo.force_demo)
+            search.tell(None if failed else (l_task, float(trial.L_comp)))
             records["x_attr"].append(np.asarray(trial.x_attr, np.float32))
             records["K"].append(np.asarray(trial.stiffness, np.float32))
             records["x_obs"].append(np.asarray(trial.x_obs, np.float32))
             records["F_obs"].append(np.asarray(trial.force_obs, np.float32))
             records["contact"].append(np.asarray(trial.contact, np.uint8))
-            records["L_task"].append(float(trial.L_task))
+            records["L_task"].append(l_task)
             records["L_comp"].append(float(trial.L_comp))
             records["failed"].append(failed)
             records["failure_reason"].append(str(trial.failure_reason or ""))

@@ -61,12 +61,13 @@ import argparse
 import csv
 import math
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from dcm.cli import print_error, quiet_libraries
+from dcm.console import print_error, quiet_libraries
 from dcm.data.log_episode import (
     NOMINAL_DOWN,
     EpisodeStreams,

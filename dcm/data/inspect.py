@@ -13,13 +13,14 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import h5py
 import numpy as np
 
-from dcm.cli import print_error
+from dcm.console import print_error
 from dcm.data.schema import CHANNELS, FIELDS, SPLITS, DatasetError, _decode_attr, load_dataset
 
 

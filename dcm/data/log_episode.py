@@ -14,7 +14,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from dcm.cli import JSONFileError, check_integer, check_number, load_json
+from dcm.configs import JSONFileError, check_integer, check_number, load_json
 
 NOMINAL_DOWN = np.diag([1.0, -1.0, -1.0])
 META_REQUIRED = ("demo_id", "split", "bowl_in_base", "free_motion_s", "base_frame")

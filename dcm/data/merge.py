@@ -17,17 +17,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import h5py
 import numpy as np
 
-from dcm.cli import print_error
+from dcm.console import print_error
 from dcm.data.atomic import atomic_path, write_problem
-
-from dcm.data.schema import FIELDS, SCALARS, SPLITS, TRAJ_NAME_FORMAT, DatasetError, _decode_attr, read_root_attrs, \
-    write_dataset
+from dcm.data.schema import FIELDS, SCALARS, SPLITS, TRAJ_NAME_FORMAT, DatasetError, _decode_attr, read_root_attrs, write_dataset
 
 PART_ARRAYS = ("x_attr", "K", "x_obs", "F_obs", "contact", "L_task", "L_comp", "failed", "failure_reason",
                "phase_stiffness_Npm")

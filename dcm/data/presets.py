@@ -10,13 +10,14 @@ import copy
 import hashlib
 import itertools
 import json
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
-from dcm.cli import CONF_DIR
+from dcm.configs import CONF_DIR
 
 
 class PresetError(ValueError):
@@ -175,7 +176,7 @@ def plan_demos(dataset: Mapping[str, Any], base_seed: int, n_trials_override: in
 
     jobs: list[DemoJob] = []
     next_traj = 0
-    for group_index, (name, split, n_trials, specs) in enumerate(groups):
+    for name, split, n_trials, specs in groups:
         valid_skills: set[int] = set()
         if split == "trainval" and valid_by == "skill":
             n_valid = int(round(valid_fraction * len(specs)))

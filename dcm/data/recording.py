@@ -9,8 +9,9 @@ grid").
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping, NamedTuple
+from typing import Any, NamedTuple
 
 
 class Recording(NamedTuple):
@@ -46,7 +47,7 @@ def stored_recording(attrs: Mapping[str, Any], path: str | Path = "<dataset>") -
 
 def preset_recording(name: str | None) -> Recording | None:
     """The recording of the preset ``conf/dataset/<name>.yaml``; None when no preset has that name."""
-    from dcm.cli import CONF_DIR
+    from dcm.configs import CONF_DIR
     from dcm.data.presets import compose_config
 
     if not name or not (CONF_DIR / "dataset" / f"{name}.yaml").is_file():

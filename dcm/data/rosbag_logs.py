@@ -22,8 +22,9 @@ first recorded message, the clock of ``meta.json``'s ``free_motion_s`` / ``start
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -203,7 +204,8 @@ def read_bag_episode(bag: Path, name: str, meta: dict[str, Any], meta_where: str
     except LogFormatError:
         raise
     except Exception as err:  # a bag rosbags cannot open: unreadable, truncated, unknown storage
-        raise LogFormatError(f"{bag}: not a readable ROS bag ({str(err).splitlines()[0] if str(err) else type(err).__name__})") from None
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise LogFormatError(f"{bag}: not a readable ROS bag ({reason})") from None
     return EpisodeStreams(
         name=name, meta=meta, meta_where=meta_where,
         pose=Stream(state.t, state.values[:, :16], state.where),

@@ -23,15 +23,16 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import h5py
 import numpy as np
 
-from dcm.cli import one_line
+from dcm.console import one_line
 from dcm.data.atomic import atomic_path
 
 FORMAT_VERSION = "1"
@@ -60,7 +61,96 @@ TRAJ_NAME_FORMAT = "traj_%06d"
 # What a contact model reads and predicts: per-step conditions and the target, in this order along the
 # channel axis. The data layout owns it (models read it); changing it invalidates checkpoints.
 COND_FIELDS: tuple[str, ...] = ("x_demo", "F_demo", "x_attr", "K")
-TARGET_FIELD = "F_obs"
+FORCE_FIELD = "F_obs"  # the target's force part: the observed wrench
+# The target's pose part: the realised translation x_obs - x_demo, derived from two stored fields. A delta, not
+# x_obs itself, so that its normaliser sees how far the tool strays from the demo rather than where the bowl is.
+POSE_DELTA_FIELD = "dx_obs"
+POSE_DELTA_SOURCES = ("x_obs", "x_demo")
+POSE_DELTA_WIDTH = 3  # the translation; the tool's orientation is held, not learned
+TARGET_FIELDS = ("force", "force_and_pose")  # a model's ``target_fields`` option
+
+
+@dataclass(frozen=True)
+class TargetLayout:
+    """What a contact model predicts, channel by channel: the wrench F_obs and, for ``force_and_pose``, the
+    realised translation ``x_obs - x_demo`` (``dx_obs``). Models, their normalisers, metrics and the data
+    pipeline read widths and slices from here, so the target's make-up is stated once.
+
+    ``channels``: the stored fields' channel names the layout is built from (a dataset's own declaration).
+    """
+
+    target_fields: str = "force"
+    channels: Mapping[str, Sequence[str]] = field(default_factory=lambda: CHANNELS)
+
+    def __post_init__(self) -> None:
+        if self.target_fields not in TARGET_FIELDS:
+            raise ValueError(f"target_fields = {self.target_fields!r} is not one of {', '.join(TARGET_FIELDS)}")
+
+    @property
+    def predicts_pose(self) -> bool:
+        return self.target_fields == "force_and_pose"
+
+    @property
+    def parts(self) -> tuple[tuple[str, list[str]], ...]:
+        """(field, channel names) in order along the target's channel axis."""
+        force = (FORCE_FIELD, list(self.channels.get(FORCE_FIELD, [])))
+        if not self.predicts_pose:
+            return (force,)
+        return force, (POSE_DELTA_FIELD, list(self.channels.get(POSE_DELTA_SOURCES[0], []))[:POSE_DELTA_WIDTH])
+
+    def channel_names(self) -> list[str]:
+        """E.g. ``F_obs.Fx_N`` ... ``F_obs.Tz_Nm`` and, with the pose, ``dx_obs.x_m`` ... ``dx_obs.z_m``."""
+        return [f"{name}.{c}" for name, channels in self.parts for c in channels]
+
+    def part(self, field_name: str) -> slice:
+        """Where ``field_name`` (``F_obs`` or ``dx_obs``) sits along the target's channel axis."""
+        start = 0
+        for name, channels in self.parts:
+            if name == field_name:
+                return slice(start, start + len(channels))
+            start += len(channels)
+        raise KeyError(f"{field_name!r} is not a part of the {self.target_fields} target; parts: "
+                       f"{[name for name, _ in self.parts]}")
+
+    @property
+    def width(self) -> int:
+        return sum(len(channels) for _, channels in self.parts)
+
+    @property
+    def force(self) -> slice:
+        return self.part(FORCE_FIELD)
+
+    @property
+    def pose(self) -> slice | None:
+        """The translation delta's channels; None for a force-only target."""
+        return self.part(POSE_DELTA_FIELD) if self.predicts_pose else None
+
+    def objective_problem(self, objective: Any) -> str | None:
+        """Why a model of this target cannot be trained or scored for ``objective`` (a
+        :class:`dcm.control.objectives.TaskObjective`), or None: one that counts the tool's path needs the pose,
+        since a force-only model cannot tell one schedule's path from another's."""
+        if objective.counts_path and not self.predicts_pose:
+            return (f"objective {objective.describe()} counts the path; this model predicts only the force: "
+                    "train it with model.target_fields=force_and_pose")
+        return None
+
+    def from_arrays(self, arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The target (..., H, width) float32 from stored fields (..., H, 6): F_obs, and for the pose the
+        translation of x_obs - x_demo."""
+        force = np.asarray(arrays[FORCE_FIELD], dtype=np.float32)
+        if not self.predicts_pose:
+            return force
+        observed, demo = (np.asarray(arrays[f], dtype=np.float32)[..., :POSE_DELTA_WIDTH] for f in POSE_DELTA_SOURCES)
+        return np.concatenate([force, observed - demo], axis=-1)
+
+
+def target_layout(target_fields: str = "force", channels: Mapping[str, Sequence[str]] | None = None) -> TargetLayout:
+    """The :class:`TargetLayout` of a model's ``target_fields`` (``force`` | ``force_and_pose``), over the
+    channels a dataset declares (default: this format's)."""
+    return TargetLayout(target_fields, CHANNELS if channels is None else channels)
+
+
+FORCE_LAYOUT = target_layout("force")
 
 
 def cond_channel_names() -> list[str]:
@@ -68,9 +158,10 @@ def cond_channel_names() -> list[str]:
     return [f"{f}.{c}" for f in COND_FIELDS for c in CHANNELS[f]]
 
 
-def target_channel_names() -> list[str]:
-    """The 6 target channel names, ``F_obs.Fx_N`` ... ``F_obs.Tz_Nm``."""
-    return [f"{TARGET_FIELD}.{c}" for c in CHANNELS[TARGET_FIELD]]
+def target_channel_names(target_fields: str = "force") -> list[str]:
+    """The target channel names of ``target_fields``: ``F_obs.Fx_N`` ... ``F_obs.Tz_Nm``, and for
+    ``force_and_pose`` then ``dx_obs.x_m`` ... ``dx_obs.z_m``."""
+    return target_layout(target_fields).channel_names()
 
 
 def cond_slice(field_name: str) -> slice:
@@ -347,7 +438,7 @@ def write_dataset(path: str | os.PathLike, trajectories: Sequence[Mapping[str, A
         channels=CHANNELS,
         stats_split=stats_split,
     )
-    root_attrs.setdefault("created", datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    root_attrs.setdefault("created", datetime.now(UTC).isoformat(timespec="seconds"))
     root_attrs[CONFIG_ATTR] = config_text(root_attrs.get(CONFIG_ATTR), path)
 
     with atomic_path(path) as tmp_name:

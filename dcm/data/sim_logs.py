@@ -20,23 +20,31 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import os
 import shutil
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from dcm.cli import print_error
+from dcm.console import print_error
 from dcm.data.log_writer import RobotConventions, TrialSignals, robot_streams, write_bag, write_csv_episode, write_meta
+from dcm.shipped import SHIPPED_ROOT, shipped_path
 
-REPO = Path(__file__).resolve().parents[2]
+DEMOS = SHIPPED_ROOT / "data" / "demos"  # the demos --demo names
 FREE_MOTION_S = 1.0  # the robot stands still before the trial: the importer's bias window
 AFTER_S = 0.3  # logging goes on briefly after the last control step
 PROPOSAL_K = ["Kx_Npm", "Ky_Npm", "Kz_Npm", "Krx_Nmprad", "Kry_Nmprad", "Krz_Nmprad"]
 FORMATS = ("csv", "ros1", "ros2")
+STORAGES = ("sqlite3", "mcap")  # a ROS 2 bag's; a ROS 1 bag has one format
+EVAL_FRACTION = 0.2  # of random trials, the share each of valid and test gets (at least one each)
+# Trials of one skill a split needs for every ranking metric (dcm.models.metrics.REGRET_TRIALS; kept here so
+# that this command loads without torch)
+RANKING_TRIALS = 4
 
 
 class SimLogsError(ValueError):
@@ -78,9 +86,9 @@ def load_demo_spec(name: str, duration_s: float | None) -> Any:
     """``--demo``: a file, or a name in data/demos (wavelike, spiral, ...)."""
     from dcm.sim.demos import DemoSpec, DemoSpecError
 
-    path = Path(name) if name.endswith((".yaml", ".yml")) else REPO / "data" / "demos" / f"{name}.yaml"
+    path = Path(shipped_path(name)) if name.endswith((".yaml", ".yml")) else DEMOS / f"{name}.yaml"
     if not path.is_file():
-        known = sorted(p.stem for p in (REPO / "data" / "demos").glob("*.yaml"))
+        known = sorted(p.stem for p in DEMOS.glob("*.yaml"))
         raise SimLogsError(f"--demo {name}: no file {path}; known demos: {', '.join(known)}")
     try:
         spec = DemoSpec.load(path)
@@ -157,15 +165,19 @@ def write_episode(episode: Path, signals: TrialSignals, fmt: str, conventions: R
 
 def simulate_logs(out: Path, fmt: str, demo_name: str = "wavelike", trials: int = 5, seed: int = 0,
                   embodiment: str = "tool", duration_s: float | None = None, schedules: Path | None = None,
-                  clean: bool = False, storage: str = "sqlite3", split: str = "auto", progress: bool = True) -> int:
+                  clean: bool = False, storage: str | None = None, split: str = "auto", progress: bool = True) -> int:
     """Simulate and write the trials; returns how many. ``out`` must not hold anything yet: the folder appears
     complete or not at all. ``split="auto"``: every proposal of a round is ``train``; of N >= 3 random trials
-    the last is ``test`` and the one before ``valid`` (fine-tuning and evaluation need both), the rest train."""
+    the last fifth (at least one) is ``test`` and the fifth before ``valid`` (fine-tuning and evaluation need
+    both), the rest train."""
     from dcm.sim.demos import DemoSpec, DemoSpecError
     from dcm.sim.rollout import Simulator, SimulatorError
 
     if fmt not in FORMATS:
         raise SimLogsError(f"--format {fmt}: use one of {', '.join(FORMATS)}")
+    if storage is not None and (storage not in STORAGES or fmt != "ros2"):
+        raise SimLogsError(f"--storage {storage}: the storage of a ROS 2 bag ({', '.join(STORAGES)}); --format {fmt} "
+                           "has none: drop --storage or use --format ros2")
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise SimLogsError(f"--out {out} exists and is not empty; choose another folder")
     rng = np.random.default_rng(seed)
@@ -218,7 +230,8 @@ def simulate_logs(out: Path, fmt: str, demo_name: str = "wavelike", trials: int 
             meta["proposal"] = proposal_id
         if trial.failed:
             meta["sim_failure"] = trial.failure_reason
-        write_episode(partial / name, trial_signals(demo, trial, sim.control_hz, meta), fmt, conventions, rng, storage)
+        write_episode(partial / name, trial_signals(demo, trial, sim.control_hz, meta), fmt, conventions, rng,
+                      storage or STORAGES[0])
         if progress:
             elapsed = time.monotonic() - started
             eta = elapsed / (index + 1) * (len(runs) - index - 1)
@@ -230,12 +243,28 @@ def simulate_logs(out: Path, fmt: str, demo_name: str = "wavelike", trials: int 
     return len(runs)
 
 
+def eval_trials(n: int) -> int:
+    """How many of ``n`` random trials each of the valid and test splits gets under ``--split auto``."""
+    return max(1, round(EVAL_FRACTION * n)) if n >= 3 else 0
+
+
 def _split(split: str, index: int, n: int, random_trials: bool) -> str:
     if split != "auto":
         return split
-    if not random_trials or n < 3:
-        return "train"
-    return {n - 1: "test", n - 2: "valid"}.get(index, "train")
+    k = eval_trials(n) if random_trials else 0
+    if index >= n - k:
+        return "test"
+    return "valid" if index >= n - 2 * k else "train"
+
+
+def split_note(n: int) -> str | None:
+    """What ``--split auto`` of ``n`` random trials leaves undefined, and the count that defines it."""
+    k = eval_trials(n)
+    if k >= RANKING_TRIALS:
+        return None
+    enough = next(m for m in itertools.count(n) if eval_trials(m) >= RANKING_TRIALS)
+    return (f"note: valid and test get {k} trial(s) each; the ranking metrics (R within skill, top-3 regret) need "
+            f">= {RANKING_TRIALS} trials of a skill per split: --trials {enough} gives {RANKING_TRIALS} each")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -243,7 +272,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      description="Run schedules in the simulator and write the trials as robot logs.")
     parser.add_argument("--out", type=Path, required=True, help="a new (or empty) folder")
     parser.add_argument("--format", choices=FORMATS, default="csv")
-    parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3", help="ROS 2 bag storage")
+    parser.add_argument("--storage", choices=STORAGES, default=None, help="ROS 2 bag storage (default sqlite3)")
     parser.add_argument("--demo", default="wavelike", help="a name in data/demos or a DemoSpec YAML file")
     parser.add_argument("--duration-s", type=float, default=None, help="shorten (or lengthen) the demo")
     parser.add_argument("--trials", type=int, default=5, help="random three-phase schedules to run")
@@ -252,7 +281,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--embodiment", choices=("tool", "panda"), default="tool")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--split", choices=("auto", "train", "valid", "test"), default="auto",
-                        help="auto: of N >= 3 random trials the last is test and the one before valid; proposals train")
+                        help="auto: of N >= 3 random trials the last fifth is test and the fifth before valid; "
+                             "proposals train")
     parser.add_argument("--clean", action="store_true", help="no F/T bias, noise or timestamp jitter")
     args = parser.parse_args(argv)
     given = [flag for flag, value, default in (("--demo", args.demo, "wavelike"), ("--trials", args.trials, 5),
@@ -269,6 +299,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SimLogsError as err:
         return print_error(err)
     print(f"wrote {n} {args.format} episode(s) to {args.out}; import with: dcm-import-logs {args.out} --out <file>.h5")
+    if args.schedules is None and args.split == "auto" and (note := split_note(n)):
+        print(note, file=sys.stderr)
     return 0
 
 

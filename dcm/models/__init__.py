@@ -20,11 +20,11 @@ def __getattr__(name: str):
         from dcm.models.baseline import Baseline
 
         return Baseline
-    if name in ("load_model", "predict_task_loss"):
+    if name in ("load_model", "predict_contact", "predict_task_loss"):
         from dcm.models import predict
 
         return getattr(predict, name)
     raise AttributeError(f"module 'dcm.models' has no attribute {name!r}")
 
 
-__all__ += ["DCM", "Baseline", "load_model", "predict_task_loss"]
+__all__ += ["DCM", "Baseline", "load_model", "predict_contact", "predict_task_loss"]

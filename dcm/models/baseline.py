@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from dcm.models.configuration import BaselineConfig
-from dcm.models.force_model import OUT_DIM, ForceModel
+from dcm.models.force_model import ForceModel
 
 
 class Baseline(ForceModel):
@@ -25,9 +25,8 @@ class Baseline(ForceModel):
     def __init__(self, data_spec: dict[str, Any] | None = None, **config: Any) -> None:
         super().__init__(data_spec=data_spec, **config)
 
-    @staticmethod
-    def _forward(net: nn.Module, cond_n: torch.Tensor) -> torch.Tensor:
-        zeros = cond_n.new_zeros(*cond_n.shape[:2], OUT_DIM)
+    def _forward(self, net: nn.Module, cond_n: torch.Tensor) -> torch.Tensor:
+        zeros = cond_n.new_zeros(*cond_n.shape[:2], self.out_dim)
         step = torch.zeros(cond_n.shape[0], dtype=torch.long, device=cond_n.device)
         return net(cond_n, zeros, step)
 

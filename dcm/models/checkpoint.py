@@ -24,7 +24,7 @@ from typing import Any
 import torch
 
 from dcm import __version__
-from dcm.cli import one_line
+from dcm.console import one_line
 from dcm.models.configuration import (
     CheckpointIncompatibleError,
     CheckpointKindError,

@@ -12,13 +12,16 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-from dcm.control.objectives import TASK_LOSSES
+from dcm.control.objectives import TASK_LOSSES, ObjectiveError, TaskObjective
 from dcm.data.schema import (  # noqa: F401 - the channel layout is the data's; re-exported for model users
     COND_FIELDS,
-    TARGET_FIELD,
+    FORCE_LAYOUT,
+    TARGET_FIELDS,
     DatasetMismatchError,
+    TargetLayout,
     cond_channel_names,
     target_channel_names,
+    target_layout,
 )
 from dcm.models.cond_encoding import COND_ENCODINGS
 from dcm.models.diffusion import INPUT_SCALINGS, PREDICTION_TYPES, SAMPLERS
@@ -55,11 +58,15 @@ class DataSpec:
 
     def check(self, cond_channels: list[str], target_channels: list[str], control_hz: float,
               source: str = "dataset") -> None:
-        """Raise :class:`DatasetMismatchError` naming the first difference."""
+        """Raise :class:`DatasetMismatchError` naming the first difference.
+
+        ``target_channels`` may be the model's force channels alone where the model also predicts the pose: a
+        caller that only asks for predictions (a skill of the tuner) has no x_obs, and needs none."""
         if list(cond_channels) != list(self.cond_channels):
             raise DatasetMismatchError(
                 f"{source}: condition channels {list(cond_channels)} differ from the model's {self.cond_channels}")
-        if list(target_channels) != list(self.target_channels):
+        force_only = list(self.target_channels[FORCE_LAYOUT.force])
+        if list(target_channels) != list(self.target_channels) and list(target_channels) != force_only:
             raise DatasetMismatchError(
                 f"{source}: target channels {list(target_channels)} differ from the model's {self.target_channels}")
         if abs(float(control_hz) - float(self.control_hz)) > 1e-9:
@@ -89,6 +96,11 @@ class ForceModelConfig:
     # paper's loss). It compares trials of one skill, so the batches must hold several: data.skill_group > 1
     task_weight: float = 0.0
     task_from_s: float = 0.0  # that term's L_task counts from this second on (1.0: after the approach)
+    # what the net predicts: force (F_obs, the paper's) | force_and_pose (F_obs and the realised translation
+    # x_obs - x_demo, which an objective that counts the path needs; dcm.data.schema.TargetLayout)
+    target_fields: str = "force"
+    # the L_task the model is trained (task term) and selected for: TaskObjective.to_dict(); None: the paper's
+    objective: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         if not (float(self.task_weight) >= 0.0 and math.isfinite(float(self.task_weight))):
@@ -112,6 +124,23 @@ class ForceModelConfig:
             raise ModelInputError(f"net config needs a 'name' (one of dcm.models.nets.SCORE_NETS), got {self.net}")
         if self.warmup_steps < 0:
             raise ModelInputError(f"warmup_steps must be >= 0, got {self.warmup_steps}")
+        if self.target_fields not in TARGET_FIELDS:
+            raise ModelInputError(f"target_fields must be one of {TARGET_FIELDS}, got {self.target_fields!r}")
+        if self.objective is not None:
+            self.objective = self.task_objective.to_dict()
+        check_objective_fits(self.task_objective, self.target_fields)
+
+    @property
+    def task_objective(self) -> TaskObjective:
+        """The configured L_task (``objective``), the paper's when none is recorded."""
+        try:
+            return TaskObjective.from_dict(self.objective)
+        except ObjectiveError as err:
+            raise ModelInputError(str(err)) from None
+
+    @property
+    def layout(self) -> TargetLayout:
+        return target_layout(self.target_fields)
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any]):
@@ -124,6 +153,21 @@ class ForceModelConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def check_objective_fits(objective: TaskObjective, target_fields: str) -> None:
+    """Refuse an objective that counts the tool's path for a model that predicts only the force: it could not
+    tell one schedule's path from another's."""
+    if problem := target_layout(target_fields).objective_problem(objective):
+        raise ModelInputError(problem)
+
+
+def check_objective_name(given: TaskObjective, own: TaskObjective, source: str) -> None:
+    """Refuse scoring with an objective of another kind than the one a predictor was trained or fitted for
+    (``source`` names it, e.g. the checkpoint): its L_task is another quantity, in another unit."""
+    if given.name != own.name:
+        raise ModelInputError(f"objective {given.describe()} differs from {own.describe()} of {source}; use "
+                              f"objective={own.name}, or a predictor trained for objective={given.name}")
 
 
 def _net_config(net: Mapping[str, Any]) -> dict[str, Any]:

@@ -14,11 +14,12 @@ from torch import nn
 
 from dcm.models import diffusion
 from dcm.models.configuration import DCMConfig, ModelInputError
-from dcm.models.force_model import OUT_DIM, ForceModel
+from dcm.models.force_model import ForceModel
 
 
 class DCM(ForceModel):
-    """DDPM over the normalised F_obs trajectory (or its residual from F_demo), conditioned per step.
+    """DDPM over the normalised target trajectory (F_obs or its residual from F_demo, and for a pose model
+    the translation x_obs - x_demo), conditioned per step.
 
     Training draws a uniform step t and regresses x0, the injected noise or v (``prediction_type``);
     prediction runs ancestral DDPM over all T steps (or DDIM over ``sampling_steps``) from pure noise,
@@ -110,7 +111,7 @@ class DCM(ForceModel):
         def net_in(cond: torch.Tensor, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
             return scaled(cond, x, t).float()  # under a bfloat16 autocast, the sampler's steps stay in float32
 
-        return diffusion.sample_many(net_in, cond_n, OUT_DIM, self.sample_scheduler, n_samples,
+        return diffusion.sample_many(net_in, cond_n, self.out_dim, self.sample_scheduler, n_samples,
                                      num_inference_steps=self.cfg.sampling_steps, generator=generator,
                                      shared_steps=self.resolved_shared_steps)
 

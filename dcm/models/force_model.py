@@ -6,6 +6,7 @@ for validation and prediction, and the one prediction call users need::
     from dcm.models.dcm import DCM
     model = DCM.load_from_checkpoint("runs/.../checkpoints/last.ckpt")
     mean_N, std_N = model.predict_forces(x_demo, F_demo, x_attr, K, n_samples=8)   # (B,H,6) each, raw units
+    contact = model.predict_contact(x_demo, F_demo, x_attr, K, n_samples=8)  # + x_mean (B,H,3) for a pose model
 """
 
 from __future__ import annotations
@@ -21,18 +22,26 @@ import torch
 from torch import nn
 
 from dcm import __version__
-from dcm.control.objectives import TASK_LOSSES, task_loss, task_loss_over_samples, task_window_start
-from dcm.data.schema import cond_slice
+from dcm.control.objectives import TASK_LOSSES, TaskObjective, task_window_start
+from dcm.data.schema import POSE_DELTA_WIDTH, TargetLayout, cond_slice
 from dcm.models.checkpoint import KIND_KEY, VERSION_KEY, _incompatible, check_code_version, read_checkpoint
 from dcm.models.cond_encoding import encode_conditions
-from dcm.models.configuration import CheckpointKindError, DataSpec, ForceModelConfig, ModelInputError
+from dcm.models.configuration import (
+    CheckpointKindError,
+    DataSpec,
+    ForceModelConfig,
+    ModelInputError,
+    check_objective_fits,
+    check_objective_name,
+)
+from dcm.models.contact import ContactPrediction
 from dcm.models.nets import build_score_net
 from dcm.models.normalizer import ChannelNormalizer
 from dcm.models.task_ranking import within_skill_task_error
 
 COND_DIM = 24
-OUT_DIM = 6
 _F_DEMO = cond_slice("F_demo")
+_X_DEMO = cond_slice("x_demo")
 PRECISIONS = ("float32", "bfloat16", "auto")
 
 
@@ -50,8 +59,17 @@ def native_bfloat16(device: torch.device | str) -> bool:
     return False
 
 
+def _weight(cond: torch.Tensor) -> Any:
+    """A batch's weight in an epoch mean that ``self.log(..., sync_dist=True)`` syncs across DDP ranks, as a
+    float. Lightning sums each rank's weights as given; an integer sum is then averaged over the ranks in integer
+    arithmetic on gloo ((2 + 1) / 2 = 1), so ranks of unequal shards (valid/test: no padding) would log a wrong
+    mean. A float keeps it exact."""
+    return float(cond.shape[0])
+
+
 class ForceModel(L.LightningModule):
-    """Shared machinery: score net + EMA copy, normalisers, data spec, optimiser, ``predict_forces``."""
+    """Shared machinery: score net + EMA copy, normalisers, data spec, optimiser, ``predict_contact`` and
+    ``predict_forces``. The target's width and slices come from ``layout`` (``cfg.target_fields``)."""
 
     model_kind: ClassVar[str] = "force_model"
     config_cls: ClassVar[type[ForceModelConfig]] = ForceModelConfig
@@ -60,15 +78,44 @@ class ForceModel(L.LightningModule):
         super().__init__()
         self.save_hyperparameters()
         self.cfg = self.config_cls.from_kwargs(config)
-        self.data_spec = DataSpec(**(data_spec or {}))
+        self.layout: TargetLayout = self.cfg.layout
+        self.data_spec = DataSpec(**{"target_channels": self.layout.channel_names(), **(data_spec or {})})
+        if list(self.data_spec.target_channels) != self.layout.channel_names():
+            raise ModelInputError(f"data_spec.target_channels {self.data_spec.target_channels} are not those of "
+                                  f"target_fields={self.cfg.target_fields}: {self.layout.channel_names()}")
         net_kwargs = {k: v for k, v in self.cfg.net.items() if k != "name"}
-        self.net = build_score_net(self.cfg.net["name"], cond_dim=COND_DIM, out_dim=OUT_DIM, **net_kwargs)
+        self.net = build_score_net(self.cfg.net["name"], cond_dim=COND_DIM, out_dim=self.out_dim, **net_kwargs)
         self.ema_net: nn.Module | None = None
         if self.cfg.ema_decay > 0:
             self.ema_net = copy.deepcopy(self.net).requires_grad_(False)
         self.cond_norm = ChannelNormalizer(COND_DIM)
-        self.target_norm = ChannelNormalizer(OUT_DIM)
+        self.target_norm = ChannelNormalizer(self.out_dim)
         self.inference_precision = "float32"  # of predictions only (set_precision); training is unaffected
+
+    @property
+    def out_dim(self) -> int:
+        """The target's channels: what the net outputs and the sampler draws."""
+        return self.layout.width
+
+    @property
+    def predicts_pose(self) -> bool:
+        """Whether predictions give the tool's pose as well as its wrench (``target_fields=force_and_pose``)."""
+        return self.layout.predicts_pose
+
+    @property
+    def objective(self) -> TaskObjective:
+        """The L_task this model is trained and selected for, and that ``predicted_task_loss`` computes."""
+        return self.cfg.task_objective
+
+    def set_objective(self, objective: TaskObjective | None, source: str = "objective") -> TaskObjective:
+        """Score with ``objective`` (None: keep the model's) in this process, e.g. other tolerances of the same
+        kind. One of another kind than the model's, or one counting the path for a force-only model, is
+        refused in one line naming both. Returns the objective in use."""
+        if objective is not None:
+            check_objective_name(objective, self.objective, source)
+            check_objective_fits(objective, self.cfg.target_fields)
+            self.cfg.objective = objective.to_dict()
+        return self.objective
 
     # ------------------------------------------------------------------ checkpoint identity
     @classmethod
@@ -97,25 +144,47 @@ class ForceModel(L.LightningModule):
 
     # ------------------------------------------------------------------ normalisation
     def fit_normalizers(self, cond: Any, target: Any) -> None:
-        """Fit both normalisers on the training split's raw conditions (N,H,24) and targets F_obs (N,H,6), the
-        way ``cfg.normalization`` says, on the residual when ``cfg.target == "residual"``. They are saved
-        with the weights, so a fine-tuned model keeps its pre-training statistics."""
+        """Fit both normalisers on the training split's raw conditions (N,H,24) and targets (N,H,C) (F_obs, and
+        x_obs - x_demo's translation for a pose model: ``layout``), the way ``cfg.normalization`` says, on the
+        residual when ``cfg.target == "residual"``; every channel on its own, so the pose's metres do not share
+        a scale with the force's newtons. They are saved with the weights, so a fine-tuned model keeps its
+        pre-training statistics."""
         cond = torch.as_tensor(np.asarray(cond, dtype=np.float32))
         target = torch.as_tensor(np.asarray(target, dtype=np.float32))
+        if target.shape[-1] != self.out_dim:
+            raise ModelInputError(f"fit_normalizers: targets have {target.shape[-1]} channels, but this model "
+                                  f"predicts {self.out_dim} ({', '.join(self.layout.channel_names())})")
         self.cond_norm.fit_data(encode_conditions(cond, self.cfg.cond_encoding), self.cfg.normalization)
         self.target_norm.fit_data(self.model_target(cond, target), self.cfg.normalization)
 
-    def model_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
-        """What the net learns, in physical units: F_obs, or F_obs - F_demo for a residual model."""
-        if self.cfg.target == "residual":
-            return force - cond[..., _F_DEMO]
-        return force
+    def model_target(self, cond: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """What the net learns, in physical units: the target (``layout``), with F_demo taken from its force for
+        a residual model. The pose part is a deviation from the demo already, and stays as it is."""
+        if self.cfg.target != "residual":
+            return target
+        if not self.predicts_pose:
+            return target - cond[..., _F_DEMO]
+        return torch.cat([target[..., self.layout.force] - cond[..., _F_DEMO], target[..., self.layout.pose]], -1)
+
+    def target_from_model(self, cond: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
+        """The inverse of ``model_target``: the target (F_obs [N, N·m], and x_obs - x_demo [m] for a pose model)
+        from the net's (un-normalised) output."""
+        if self.cfg.target != "residual":
+            return value
+        if not self.predicts_pose:
+            return value + cond[..., _F_DEMO]
+        return torch.cat([value[..., self.layout.force] + cond[..., _F_DEMO], value[..., self.layout.pose]], -1)
 
     def force_from_target(self, cond: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
-        """The inverse of ``model_target``: the wrench F_obs [N, N·m] from the net's (un-normalised) output."""
-        if self.cfg.target == "residual":
-            return value + cond[..., _F_DEMO]
-        return value
+        """The wrench F_obs [N, N·m] from the net's (un-normalised) output."""
+        return self.target_from_model(cond, value)[..., self.layout.force]
+
+    def pose_from_target(self, cond: torch.Tensor, target: torch.Tensor) -> torch.Tensor | None:
+        """The tool's translation x_obs (..., 3) [m] from raw conditions and a target (``target_from_model``'s
+        output, or a batch's): x_demo plus the deviation; None for a force-only model."""
+        if not self.predicts_pose:
+            return None
+        return cond[..., _X_DEMO][..., :POSE_DELTA_WIDTH] + target[..., self.layout.pose]
 
     def _require_fitted(self) -> None:
         if not (bool(self.cond_norm.fitted) and bool(self.target_norm.fitted)):
@@ -160,18 +229,25 @@ class ForceModel(L.LightningModule):
 
     def task_term(self, cond: torch.Tensor, estimate_n: torch.Tensor, target_n: torch.Tensor,
                   groups: torch.Tensor) -> torch.Tensor:
-        """Within-skill error of L_task (from ``cfg.task_from_s``) of the estimated against the true force,
-        in the normaliser's force units so that ``task_weight`` does not depend on the data's scale."""
-        F_demo = cond[..., _F_DEMO]
+        """Within-skill error of the configured L_task (``objective``, from ``cfg.task_from_s``) of the estimated
+        against the true target, in the normaliser's force units (a wipe's L_task times its force tolerance,
+        which is in newtons) so that ``task_weight`` does not depend on the data's scale."""
+        F_demo, x_demo = cond[..., _F_DEMO], cond[..., _X_DEMO]
         start = task_window_start(self.cfg.task_from_s, self.data_spec.control_hz, cond.shape[-2])
-        force_scale = self.target_norm.scale[:3].mean()
-        L_pred, L_true = (task_loss(self.force_from_target(cond, self.target_norm.unnormalize(value)), F_demo, start)
-                          for value in (estimate_n, target_n))
+        objective = self.objective
+        force_scale = self.target_norm.scale[self.layout.force][:3].mean() * objective.force_tolerance_N
+
+        def L_task(value: torch.Tensor) -> torch.Tensor:
+            target = self.target_from_model(cond, self.target_norm.unnormalize(value))
+            return objective.task_loss(target[..., self.layout.force], F_demo, self.pose_from_target(cond, target),
+                                       x_demo, start)
+
+        L_pred, L_true = (L_task(value) for value in (estimate_n, target_n))
         return within_skill_task_error(L_pred * force_scale, L_true * force_scale, groups)
 
     def sample_normalized(self, cond_n: torch.Tensor, n_samples: int = 1,
                           generator: torch.Generator | None = None) -> torch.Tensor:
-        """(n_samples, B, H, 6) force samples in normalised units for normalised conditions (B, H, 24)."""
+        """(n_samples, B, H, C) target samples in normalised units for normalised conditions (B, H, 24)."""
         raise NotImplementedError
 
     @property
@@ -186,9 +262,17 @@ class ForceModel(L.LightningModule):
         """The net's condition input for raw conditions: encoded (``cfg.cond_encoding``), then normalised."""
         return self.cond_norm.normalize(encode_conditions(cond, self.cfg.cond_encoding))
 
-    def normalized_target(self, cond: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
-        """The training target in normalised units for raw conditions and F_obs."""
-        return self.target_norm.normalize(self.model_target(cond, force))
+    def input_range(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Raw conditions (..., 24) as the net's encoder reads them (``cfg.cond_encoding``), with each encoded
+        channel's training range (low, high) that the input normaliser maps to [-1, 1]: a caller judges how far
+        its inputs lie outside the training data without reaching into the normaliser."""
+        encoded = encode_conditions(torch.as_tensor(np.asarray(cond)), self.cfg.cond_encoding).double().numpy()
+        low, high = self.cond_norm.value_range()
+        return encoded, low, high
+
+    def normalized_target(self, cond: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """The training target in normalised units for raw conditions and a raw target (``layout``)."""
+        return self.target_norm.normalize(self.model_target(cond, target))
 
     def _batch_loss(self, net: nn.Module, batch: dict[str, torch.Tensor], generator: torch.Generator | None = None,
                     prefix: str | None = None) -> torch.Tensor:
@@ -199,20 +283,24 @@ class ForceModel(L.LightningModule):
                                 generator, cond=cond, groups=batch.get("skill"))
         if prefix and "task" in terms:
             for name, value in terms.items():
-                self.log(f"{prefix}/loss_{name}", value, on_step=False, on_epoch=True, batch_size=cond.shape[0],
-                         sync_dist=prefix != "train")
+                self.log(f"{prefix}/loss_{name}", value, on_step=False, on_epoch=True,
+                         batch_size=_weight(cond), sync_dist=True)
         return self._weighted(terms)
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        """One optimiser step. Every loss is logged with ``sync_dist=True``: under DDP each rank holds the mean
+        of its own shard, and Lightning's batch-size-weighted sync makes the logged value the mean over all
+        ranks' trajectories (one all-reduce of a scalar per step, small beside the gradients')."""
         loss = self._batch_loss(self.net, batch, prefix="train")
-        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=batch["cond"].shape[0])
+        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, batch_size=_weight(batch["cond"]),
+                 sync_dist=True)
         return loss
 
     def _eval_loss(self, batch: dict[str, torch.Tensor], batch_idx: int, prefix: str) -> torch.Tensor:
         # A fixed generator per batch makes the (noisy) diffusion loss comparable across epochs.
         gen = torch.Generator(device=self.device).manual_seed(10_000 + batch_idx)
         loss = self._batch_loss(self.inference_net, batch, gen, prefix)
-        self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=batch["cond"].shape[0],
+        self.log(f"{prefix}/loss", loss, prog_bar=False, on_epoch=True, batch_size=_weight(batch["cond"]),
                  sync_dist=True)
         return loss
 
@@ -294,9 +382,10 @@ class ForceModel(L.LightningModule):
     @torch.no_grad()
     def predict_raw(self, cond: torch.Tensor, n_samples: int | None = None,
                     generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mean and spread of the wrench [N, N·m] (B,H,6) for raw conditions (B,H,24) on the model's device."""
+        """Mean and spread of the target (B,H,C) for raw conditions (B,H,24) on the model's device: the wrench
+        [N, N·m] and, for a pose model, the translation x_obs - x_demo [m] (``layout``)."""
         mean_n, std_n = self.predict_normalized(self.normalized_cond(cond), n_samples, generator)
-        mean = self.force_from_target(cond, self.target_norm.unnormalize(mean_n))
+        mean = self.target_from_model(cond, self.target_norm.unnormalize(mean_n))
         return mean, self.target_norm.unnormalize_std(std_n)
 
     def set_task_loss(self, task_loss: str) -> None:
@@ -307,17 +396,47 @@ class ForceModel(L.LightningModule):
         if hasattr(self.cfg, "task_loss"):
             self.cfg.task_loss = task_loss
 
-    def predicted_task_loss(self, mean: Any, std: Any, F_demo: Any) -> Any:
-        """L_task (B,) [N] a prediction implies: of the mean force, or with ``task_loss=over_samples`` (a DCM
-        option) the RMS over the samples, whose spread ``std`` then counts (the baseline's is 0)."""
+    def predicted_task_loss(self, mean: Any, std: Any, F_demo: Any, x_mean: Any = None, x_std: Any = None,
+                            x_demo: Any = None, from_step: int = 0, objective: TaskObjective | None = None) -> Any:
+        """L_task (B,) of the model's objective (or ``objective``) that a prediction implies, from ``from_step``
+        on: of the mean force (and, when the objective counts the path, the mean pose ``x_mean``), or with
+        ``task_loss=over_samples`` (a DCM option) the RMS over the samples, whose spreads then count (the
+        baseline's are 0). ``x_demo`` is the demo's pose, whose surface normals the path error needs."""
+        objective = self.objective if objective is None else objective
         if getattr(self.cfg, "task_loss", "of_mean") == "over_samples":
-            return task_loss_over_samples(mean, std, F_demo)
-        return task_loss(mean, F_demo)
+            return objective.task_loss_over_samples(mean, std, F_demo, x_mean, x_std, x_demo, from_step)
+        return objective.task_loss(mean, F_demo, x_mean, x_demo, from_step)
+
+    def _raw_conditions(self, caller: str, x_demo: Any, F_demo: Any, x_attr: Any, K: Any
+                        ) -> tuple[torch.Tensor, bool, torch.device]:
+        """Checked raw inputs as (B,H,24) on the model's device, whether they came as one (H,6) trajectory,
+        and the inputs' device."""
+        self._require_fitted()
+        parts = []
+        for name, value in (("x_demo", x_demo), ("F_demo", F_demo), ("x_attr", x_attr), ("K", K)):
+            t = torch.as_tensor(np.asarray(value) if not torch.is_tensor(value) else value, dtype=torch.float32)
+            if t.shape[-1:] != (6,) or t.dim() not in (2, 3):
+                raise ModelInputError(f"{caller}: {name} must be (B,H,6) or (H,6), got {tuple(t.shape)}")
+            parts.append(t)
+        if not bool((parts[-1] > 0).all()):
+            raise ModelInputError(f"{caller}: K must be positive, got min {float(parts[-1].min()):.4g} N/m")
+        shapes = {tuple(p.shape) for p in parts}
+        if len(shapes) != 1:
+            raise ModelInputError(f"{caller}: inputs differ in shape: {sorted(shapes)}")
+        single = parts[0].dim() == 2
+        out_device = parts[0].device
+        cond = torch.cat(parts, dim=-1).to(self.device)
+        if single:
+            cond = cond[None]
+        if not torch.isfinite(cond).all():
+            raise ModelInputError(f"{caller}: inputs contain NaN or inf")
+        return cond, single, out_device
 
     @torch.no_grad()
-    def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
-                       generator: torch.Generator | None = None) -> tuple[Any, Any]:
-        """Predict the contact wrench F_obs for raw (un-normalised) inputs.
+    def predict_contact(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
+                        generator: torch.Generator | None = None, caller: str = "predict_contact"
+                        ) -> ContactPrediction:
+        """Predict the contact wrench F_obs and, for a pose model, the tool's translation x_obs for raw inputs.
 
         Args:
             x_demo, F_demo, x_attr, K: (B,H,6) or (H,6) numpy arrays or tensors in the dataset's units
@@ -327,35 +446,28 @@ class ForceModel(L.LightningModule):
             generator: a torch.Generator (on the model's device) for reproducible samples.
 
         Returns:
-            ``(mean_N, std_N)``: predicted wrench and its spread over samples, (B,H,6) [N, N·m], numpy when
-            ``x_demo`` is numpy, else tensors on the inputs' device.
+            a :class:`ContactPrediction`: ``force_mean`` / ``force_std`` (B,H,6) [N, N·m] and, when
+            ``predicts_pose``, ``x_mean`` / ``x_std`` (B,H,3) [m] (x_demo plus the predicted deviation); numpy
+            when ``x_demo`` is numpy, else tensors on the inputs' device.
         """
-        self._require_fitted()
         as_numpy = isinstance(x_demo, np.ndarray)
-        parts = []
-        for name, value in (("x_demo", x_demo), ("F_demo", F_demo), ("x_attr", x_attr), ("K", K)):
-            t = torch.as_tensor(np.asarray(value) if not torch.is_tensor(value) else value, dtype=torch.float32)
-            if t.shape[-1:] != (6,) or t.dim() not in (2, 3):
-                raise ModelInputError(f"predict_forces: {name} must be (B,H,6) or (H,6), got {tuple(t.shape)}")
-            parts.append(t)
-        if not bool((parts[-1] > 0).all()):
-            raise ModelInputError(f"predict_forces: K must be positive, got min {float(parts[-1].min()):.4g} N/m")
-        shapes = {tuple(p.shape) for p in parts}
-        if len(shapes) != 1:
-            raise ModelInputError(f"predict_forces: inputs differ in shape: {sorted(shapes)}")
-        single = parts[0].dim() == 2
-        out_device = parts[0].device
-        cond = torch.cat(parts, dim=-1).to(self.device)
-        if single:
-            cond = cond[None]
-        if not torch.isfinite(cond).all():
-            raise ModelInputError("predict_forces: inputs contain NaN or inf")
+        cond, single, out_device = self._raw_conditions(caller, x_demo, F_demo, x_attr, K)
         mean, std = self.predict_raw(cond, n_samples, generator)
+        values = [mean[..., self.layout.force], std[..., self.layout.force]]
+        if self.predicts_pose:
+            values += [self.pose_from_target(cond, mean), std[..., self.layout.pose]]
         if single:
-            mean, std = mean[0], std[0]
-        if as_numpy:
-            return mean.cpu().numpy(), std.cpu().numpy()
-        return mean.to(out_device), std.to(out_device)
+            values = [v[0] for v in values]
+        values = [v.cpu().numpy() if as_numpy else v.to(out_device) for v in values]
+        return ContactPrediction(*values)
+
+    @torch.no_grad()
+    def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
+                       generator: torch.Generator | None = None) -> tuple[Any, Any]:
+        """The wrench part of :meth:`predict_contact`: ``(mean_N, std_N)``, (B,H,6) [N, N·m] each, numpy when
+        ``x_demo`` is numpy, else tensors on the inputs' device."""
+        contact = self.predict_contact(x_demo, F_demo, x_attr, K, n_samples, generator, caller="predict_forces")
+        return contact.force_mean, contact.force_std
 
 
-__all__ = ["COND_DIM", "OUT_DIM", "ForceModel"]
+__all__ = ["COND_DIM", "ForceModel"]

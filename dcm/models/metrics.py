@@ -11,27 +11,38 @@ stroke. The ``skill`` attribute of a dataset names the preset's skill *family* (
 spiral demos of ``sim``, so it is not the grouping the tuner sees.
 
 Force metrics put a model's force RMSE next to that of copying the demonstrated force (``F_obs := F_demo``):
-a model that does not beat copy-F_demo has learnt nothing about the contact beyond the demo.
+a model that does not beat copy-F_demo has learnt nothing about the contact beyond the demo. A model that
+predicts the pose gets path metrics beside them, against copying the demonstrated pose (``x_obs := x_demo``).
+
+L_task is the configured objective's (:class:`dcm.control.objectives.TaskObjective`, the paper's force RMSE in N
+by default); the ``_N`` of ``L_task_mae_N`` and ``L_task_*_N`` is then its unit.
 
 Pure numpy/scipy on arrays in physical units; every function returns plain floats (NaN when undefined).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Literal
 
 import numpy as np
 from scipy import stats
 
-from dcm.control.objectives import task_loss
-from dcm.data.schema import CHANNELS
+from dcm.control.objectives import PAPER, TaskObjective, surface_normals, tangential
+from dcm.data.schema import CHANNELS, FORCE_FIELD, POSE_DELTA_WIDTH
 
 Method = Literal["pearson", "spearman"]
-WRENCH_AXES: tuple[str, ...] = tuple(c.split("_")[0] for c in CHANNELS["F_obs"])  # Fx, Fy, Fz, Tx, Ty, Tz
+WRENCH_AXES: tuple[str, ...] = tuple(c.split("_")[0] for c in CHANNELS[FORCE_FIELD])  # Fx, Fy, Fz, Tx, Ty, Tz
 MIN_TRIALS = 3  # a correlation over 2 points is always +-1: it says nothing about ranking
 TOP_PICKS = 3  # schedules of a skill a tuner keeps in the regret metric (about the size of a validated front)
 REGRET_KEY = f"top{TOP_PICKS}_regret"
 CI_LEVEL, CI_RESAMPLES = 0.9, 1000  # the bootstrap interval of R_within
+REGRET_TRIALS = max(MIN_TRIALS, TOP_PICKS + 1)  # a skill's trials the regret needs: more than it keeps
+POOLED_TRIALS = 2  # R_pooled: any two trials with different L_task
+# The trials each ranking metric needs: per skill, or over the whole split.
+RANKING_NEEDS: dict[str, tuple[int, bool]] = {
+    "R_within": (MIN_TRIALS, True), "R_within_lo": (MIN_TRIALS, True), "R_within_hi": (MIN_TRIALS, True),
+    "R_within_spearman": (MIN_TRIALS, True), REGRET_KEY: (REGRET_TRIALS, True), "R_pooled": (POOLED_TRIALS, False)}
 
 
 def correlation(pred: np.ndarray, true: np.ndarray, method: Method = "pearson") -> float:
@@ -199,6 +210,31 @@ def ranking_metrics(L_pred: np.ndarray, L_true: np.ndarray, skills: np.ndarray |
     }
 
 
+def ranking_shortfall(name: str, skills: np.ndarray, split: str = "this split") -> str | None:
+    """``"needs >= 3 trials per skill; this split has 1"`` when a split whose trials have these ``skills`` is too
+    small to define ranking metric ``name`` (a key of :data:`RANKING_NEEDS`), else None."""
+    if name not in RANKING_NEEDS:
+        return None
+    need, per_skill = RANKING_NEEDS[name]
+    labels = np.asarray(skills).ravel()
+    have = (int(np.unique(labels, return_counts=True)[1].max()) if labels.size else 0) if per_skill else labels.size
+    return f"needs >= {need} trials{' per skill' if per_skill else ''}; {split} has {have}" if have < need else None
+
+
+def undefined_metrics(metrics: Mapping[str, float], skills: np.ndarray, split: str = "this split",
+                      prefix: str = "") -> dict[str, str]:
+    """Why each ranking metric that ``metrics`` holds as NaN is undefined, so that a command says it instead of
+    printing NaN: :func:`ranking_shortfall`, or, on a split large enough, a constant L_task. ``prefix`` is the
+    metrics' key prefix (``"test/"``), ``split`` how the reason names the split."""
+    out = {}
+    for name in RANKING_NEEDS:
+        value = metrics.get(prefix + name)
+        if value is not None and not np.isfinite(value):
+            out[prefix + name] = (ranking_shortfall(name, skills, split)
+                                  or "the predicted or the true L_task is constant")
+    return out
+
+
 def force_rmse(force_a: np.ndarray, force_b: np.ndarray) -> float:
     """RMSE [N] between two (..., H, >=3) wrench arrays over everything and the 3 force axes."""
     a = np.asarray(force_a, dtype=np.float64)[..., :3]
@@ -242,26 +278,63 @@ def skill_common_rmse(force_a: np.ndarray, force_b: np.ndarray, skills: np.ndarr
     return float(np.sqrt(np.mean(common**2)))
 
 
-def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray,
-                             skills: np.ndarray | None, L_pred: np.ndarray | None = None
-                             ) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
-    """:func:`force_metrics` plus :func:`ranking_metrics` of the L_task the forces imply, and with ``skills``
-    the part of the model's and copy-F_demo's force error a skill's trials share (:func:`skill_common_rmse`:
-    ``force_rmse_skill_common_N``, ``force_rmse_skill_common_copy_N``).
+def path_rmse(x_pred: np.ndarray, x_obs: np.ndarray, x_demo: np.ndarray, F_demo: np.ndarray,
+              from_step: int = 0) -> float:
+    """RMSE [m] of a predicted against the observed tool translation (N, H, >=3), over everything from step
+    ``from_step`` on, in the surface's tangent plane along the demo (:func:`dcm.control.objectives.surface_normals`):
+    the part of the pose that the path error of L_task counts."""
+    normals = surface_normals(x_demo, F_demo)[..., from_step:, :]
+    a, b = (np.asarray(x, dtype=np.float64)[..., from_step:, :POSE_DELTA_WIDTH] for x in (x_pred, x_obs))
+    return float(np.sqrt(np.mean((tangential(a - b, normals) ** 2).sum(-1))))
 
-    Returns ``(metrics, L_task_pred, L_task_true)``; L_task is :func:`dcm.control.objectives.task_loss`, of
-    ``F_pred`` unless the model gives its own ``L_pred`` (``ForceModel.predicted_task_loss``).
+
+def pose_metrics(x_pred: np.ndarray, x_obs: np.ndarray, x_demo: np.ndarray, F_demo: np.ndarray,
+                 from_step: int = 0) -> dict[str, float]:
+    """Path accuracy of a pose prediction against the observed pose, next to copy-x_demo's.
+
+    Keys: ``path_rmse_m`` (:func:`path_rmse`), ``path_rmse_copy_m`` (the same for predicting x_obs := x_demo)
+    and ``path_rmse_ratio_copy`` (model / copy: below 1 the model beats copying the demo).
     """
+    model = path_rmse(x_pred, x_obs, x_demo, F_demo, from_step)
+    copy = path_rmse(x_demo, x_obs, x_demo, F_demo, from_step)
+    return {"path_rmse_m": model, "path_rmse_copy_m": copy,
+            "path_rmse_ratio_copy": model / copy if copy > 0 else float("nan")}
+
+
+def force_prediction_metrics(F_pred: np.ndarray, F_obs: np.ndarray, F_demo: np.ndarray,
+                             skills: np.ndarray | None, L_pred: np.ndarray | None = None,
+                             objective: TaskObjective = PAPER, x_pred: np.ndarray | None = None,
+                             x_obs: np.ndarray | None = None, x_demo: np.ndarray | None = None,
+                             from_step: int = 0) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+    """:func:`force_metrics` plus :func:`ranking_metrics` of the L_task the prediction implies, and with
+    ``skills`` the part of the model's and copy-F_demo's force error a skill's trials share
+    (:func:`skill_common_rmse`: ``force_rmse_skill_common_N``, ``force_rmse_skill_common_copy_N``); for a
+    pose prediction ``x_pred`` (N, H, 3) also :func:`pose_metrics`.
+
+    Arrays span whole trajectories; errors and L_task count the steps from ``from_step`` on. Returns
+    ``(metrics, L_task_pred, L_task_true)``; L_task is ``objective``'s (the path counted when it counts it:
+    then ``x_obs`` and ``x_demo`` are needed, and ``x_pred`` unless ``L_pred`` is given), of the prediction
+    unless the model gives its own ``L_pred`` (``ForceModel.predicted_task_loss``).
+    """
+    def f64(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else np.asarray(a, np.float64)
+
     if L_pred is None:
-        L_pred = np.asarray(task_loss(np.asarray(F_pred, np.float64), np.asarray(F_demo, np.float64)))
-    L_true = np.asarray(task_loss(np.asarray(F_obs, np.float64), np.asarray(F_demo, np.float64)))
-    metrics = force_metrics(F_pred, F_obs, F_demo)
+        L_pred = np.asarray(objective.task_loss(f64(F_pred), f64(F_demo), f64(x_pred), f64(x_demo), from_step))
+    L_true = np.asarray(objective.task_loss(f64(F_obs), f64(F_demo), f64(x_obs), f64(x_demo), from_step))
+    window = (Ellipsis, slice(int(from_step), None), slice(None))
+    F_pred, F_obs, F_demo_w = (np.asarray(a)[window] for a in (F_pred, F_obs, F_demo))
+    metrics = force_metrics(F_pred, F_obs, F_demo_w)
     if skills is not None:
         metrics.update(force_rmse_skill_common_N=skill_common_rmse(F_pred, F_obs, skills),
-                       force_rmse_skill_common_copy_N=skill_common_rmse(F_demo, F_obs, skills))
+                       force_rmse_skill_common_copy_N=skill_common_rmse(F_demo_w, F_obs, skills))
+    if x_pred is not None and x_obs is not None and x_demo is not None:
+        metrics.update(pose_metrics(x_pred, x_obs, x_demo, F_demo, from_step))
     return {**metrics, **ranking_metrics(L_pred, L_true, skills)}, L_pred, L_true
 
 
-__all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "REGRET_KEY", "TOP_PICKS", "WRENCH_AXES", "correlation",
-           "force_metrics", "force_prediction_metrics", "force_rmse", "per_skill_ranking", "ranking_metrics",
-           "skill_common_rmse", "within_skill_correlation", "within_skill_interval", "within_skill_regret"]
+__all__ = ["CI_LEVEL", "CI_RESAMPLES", "MIN_TRIALS", "POOLED_TRIALS", "RANKING_NEEDS", "REGRET_KEY", "REGRET_TRIALS",
+           "TOP_PICKS", "WRENCH_AXES", "correlation", "force_metrics", "force_prediction_metrics", "force_rmse",
+           "path_rmse", "per_skill_ranking", "pose_metrics", "ranking_metrics", "ranking_shortfall",
+           "skill_common_rmse", "undefined_metrics", "within_skill_correlation", "within_skill_interval",
+           "within_skill_regret"]

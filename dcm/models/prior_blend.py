@@ -75,6 +75,15 @@ class PriorBlend:
         return self.model.data_spec
 
     @property
+    def objective(self) -> Any:
+        """The force model's L_task (the prior was fitted for the same one: :func:`dcm.models.predict.with_prior`)."""
+        return self.model.objective
+
+    @property
+    def predicts_pose(self) -> bool:
+        return bool(self.model.predicts_pose)
+
+    @property
     def device(self) -> Any:
         """The force model's device, so that callers seed its sampling as they would the model's own."""
         return self.model.device

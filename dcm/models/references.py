@@ -1,16 +1,17 @@
 """Reference predictors every learned model is compared with, loadable wherever a checkpoint is.
 
-* ``copy_demo`` (:class:`CopyDemo`): predicts ``F_obs := F_demo``. Its force RMSE is the floor a contact
-  model must beat; its predicted L_task is 0 for every schedule, so it cannot rank schedules (the tuner
-  refuses it).
-* ``stiffness_ridge`` (:class:`StiffnessRegression`): ridge regression of log L_task on features of the
+* ``copy_demo`` (:class:`CopyDemo`): predicts ``F_obs := F_demo`` and ``x_obs := x_demo``. Its force and path
+  RMSE are the floor a contact model must beat; its predicted path error is 0, so its L_task is the force
+  term alone: 0 for every schedule, so it cannot rank schedules (the tuner refuses it).
+* ``stiffness_ridge`` (:class:`StiffnessRegression`): ridge regression of log L_task (of the configured
+  objective, :class:`dcm.control.objectives.TaskObjective`; the paper's force RMSE by default) on features of the
   per-phase stiffness alone (:mod:`dcm.models.stiffness_features`), blind to the demo and the attractor.
   It is fitted on **per-skill centred** data, so it learns how stiffness re-orders one skill's trials
   (what the tuner needs) rather than which skills are hard; the global mean is added back so predictions
   have a sensible level. A learned model that does not beat it has not learnt more than "which
   schedules are usually good". Fit it with::
 
-      python -m dcm.models.references fit --dataset data/sim.h5 --out stiffness_ref.json
+      python -m dcm.models.references fit --dataset data/sim.h5 --out stiffness_ref.json [--objective wipe]
 
   and use the JSON as ``ckpt=`` of ``python -m dcm.evaluate`` or ``tune.py`` (a robot-free tuner without a
   neural net), or as ``reference=`` of ``dcm.evaluate``.
@@ -30,11 +31,13 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import linalg
 
-from dcm.cli import error_line, quiet_libraries
-from dcm.control.objectives import task_loss, task_window_start
+from dcm.console import error_line, quiet_libraries
+from dcm.control.objectives import PAPER, ObjectiveError, TaskObjective, task_window_start
 from dcm.data.atomic import write_problem
 from dcm.data.recording import stored_recording
-from dcm.models.configuration import ModelInputError
+from dcm.data.schema import POSE_DELTA_WIDTH
+from dcm.models.configuration import ModelInputError, check_objective_name
+from dcm.models.contact import ContactPrediction
 from dcm.models.metrics import within_skill_correlation
 from dcm.models.stiffness_features import FEATURE_SPEC, batch_phase_values, feature_names, features
 
@@ -57,11 +60,24 @@ def _numpy(value: Any) -> np.ndarray:
 
 
 class CopyDemo:
-    """``F_obs := F_demo``: the no-model floor for force accuracy. Any control rate, no file."""
+    """``F_obs := F_demo`` and ``x_obs := x_demo``: the no-model floor for force and path accuracy. Any control
+    rate, no file. ``objective``: the L_task it is scored with (it learnt nothing, so any applies)."""
 
     model_kind: ClassVar[str] = COPY_DEMO
     ranks_schedules: ClassVar[bool] = False  # its L_task is 0 whatever the stiffness
+    predicts_pose: ClassVar[bool] = True  # the demo's own
     data_spec = None  # nothing learnt, so nothing to check a dataset against
+
+    def __init__(self, objective: TaskObjective = PAPER) -> None:
+        self.objective = objective
+
+    def predict_contact(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
+                        generator: Any = None) -> ContactPrediction:
+        """F_demo and x_demo's translation with zero spreads: numpy copies of the inputs (their float precision
+        kept, so the force and path errors to the demo are exactly 0)."""
+        F, std = self.predict_forces(x_demo, F_demo, x_attr, K)
+        x = np.array(_numpy(x_demo)[..., :POSE_DELTA_WIDTH], dtype=np.result_type(_numpy(x_demo), np.float32))
+        return ContactPrediction(F, std, x, np.zeros_like(x))
 
     def predict_forces(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any, n_samples: int | None = None,
                        generator: Any = None) -> tuple[np.ndarray, np.ndarray]:
@@ -78,10 +94,11 @@ class StiffnessRegression:
 
     model_kind: ClassVar[str] = STIFFNESS_RIDGE
     ranks_schedules: ClassVar[bool] = True
+    predicts_pose: ClassVar[bool] = False  # it predicts L_task alone, of the objective it was fitted for
 
     def __init__(self, n_phases: int, mean: np.ndarray, scale: np.ndarray, coefficients: np.ndarray,
                  intercept: float, control_hz: float, info: dict[str, Any] | None = None,
-                 path: str | None = None) -> None:
+                 path: str | None = None, objective: TaskObjective = PAPER) -> None:
         self.n_phases = int(n_phases)
         self.mean = np.asarray(mean, dtype=np.float64)
         self.scale = np.asarray(scale, dtype=np.float64)
@@ -90,6 +107,7 @@ class StiffnessRegression:
         self.control_hz = float(control_hz)
         self.info = dict(info or {})
         self.path = path
+        self.objective = objective
         n_features = len(feature_names(self.n_phases))
         for name, arr in (("mean", self.mean), ("scale", self.scale), ("coefficients", self.coefficients)):
             if arr.shape != (n_features,) or not np.all(np.isfinite(arr)):
@@ -113,6 +131,17 @@ class StiffnessRegression:
         """Where the L_task it learned starts [s]; 0 when the fit record names no start (the whole trajectory)."""
         return float(self.info.get("task_from_s", 0.0))
 
+    def check_objective(self, objective: TaskObjective | None, source: str) -> None:
+        """Refuse to score an L_task other than the one the ridge learned (another kind, or other tolerances,
+        which weigh force and path otherwise); None is its own."""
+        where = f"the stiffness reference {self.path or '(fitted in memory)'}"
+        if objective is None:
+            return
+        check_objective_name(objective, self.objective, where)
+        if objective != self.objective:
+            raise ReferenceError(f"{source}: {where} ranks L_task of objective {self.objective.describe()}, not "
+                                 f"{objective.describe()}; fit one with those tolerances")
+
     def check_window(self, task_from_s: float, source: str) -> None:
         """Refuse to score a window of L_task other than the one the ridge learned to rank."""
         if abs(float(task_from_s) - self.task_from_s) > 1e-9:
@@ -128,14 +157,16 @@ class StiffnessRegression:
         return self.intercept + z @ self.coefficients
 
     def predict_task_loss(self, x_demo: Any, F_demo: Any, x_attr: Any, K: Any) -> np.ndarray:
-        """(B,) predicted L_task [N]; only K is used (the demo and attractor are ignored by design)."""
+        """(B,) predicted L_task (of ``objective``, in its unit); only K is used (the demo and attractor are
+        ignored by design)."""
         return np.exp(self.predict_log_task_loss(K))
 
     # ------------------------------------------------------------------ fitting
     @classmethod
     def fit(cls, K: np.ndarray, L_task: np.ndarray, skills: np.ndarray, n_phases: int, control_hz: float,
-            alpha: float | None = None, info: dict[str, Any] | None = None) -> StiffnessRegression:
-        """Fit on schedules K (N, H, 6), true L_task (N,) [N] and skill labels (N,).
+            alpha: float | None = None, info: dict[str, Any] | None = None,
+            objective: TaskObjective = PAPER) -> StiffnessRegression:
+        """Fit on schedules K (N, H, 6), true L_task (N,) of ``objective`` and skill labels (N,).
 
         Features and log L_task are centred within each skill; ridge (closed form) on the centred data with
         ``alpha`` or, if None, the one of :data:`ALPHAS` with the best grouped cross-validated within-skill
@@ -155,7 +186,8 @@ class StiffnessRegression:
         if alpha is None:
             alpha, cv = _cross_validate(Zc, yc, skills)
         coefficients = _ridge(Zc, yc, float(alpha))
-        model = cls(n_phases, X.mean(axis=0), scale, coefficients, float(y.mean()), control_hz, info)
+        model = cls(n_phases, X.mean(axis=0), scale, coefficients, float(y.mean()), control_hz, info,
+                    objective=objective)
         pred = model.predict_log_task_loss(K)
         r, n_used = within_skill_correlation(pred, y, skills, "spearman")
         model.info.update(alpha=float(alpha), cv=cv, n_trajectories=int(len(y)),
@@ -166,9 +198,10 @@ class StiffnessRegression:
     @classmethod
     def fit_dataset(cls, path: str | Path, split: str = "train", alpha: float | None = None,
                     n_phases: int | None = None, index: np.ndarray | None = None,
-                    task_from_s: float = 0.0) -> StiffnessRegression:
+                    task_from_s: float = 0.0, objective: TaskObjective = PAPER) -> StiffnessRegression:
         """Fit on ``split`` of a dataset file (only its trajectories ``index``, if given), grouped by
-        ``demo_id``; L_task from its F_obs and F_demo, counted from ``task_from_s`` on."""
+        ``demo_id``; L_task of ``objective`` from its F_obs, x_obs, F_demo and x_demo, counted from
+        ``task_from_s`` on."""
         from dcm.data.schema import load_dataset
 
         loaded = load_dataset(path, split=split)
@@ -178,8 +211,9 @@ class StiffnessRegression:
             start = task_window_start(task_from_s, loaded.control_hz, loaded.horizon)
         except ValueError as err:
             raise ReferenceError(f"dataset {path}: {err}") from None
-        L = np.asarray(task_loss(loaded.arrays["F_obs"][rows].astype(np.float64),
-                                 loaded.arrays["F_demo"][rows].astype(np.float64), start))
+        F_obs, F_demo, x_obs, x_demo = (loaded.arrays[f][rows].astype(np.float64)
+                                        for f in ("F_obs", "F_demo", "x_obs", "x_demo"))
+        L = np.asarray(objective.task_loss(F_obs, F_demo, x_obs, x_demo, start))
         info = {"dataset": _dataset_identity(Path(path), loaded.attrs), "split": split, "group_key": GROUP_KEY,
                 "phase_method": _phase_method(loaded.attrs)}
         if task_from_s:  # only when set: a whole-trajectory fit records no start
@@ -187,7 +221,8 @@ class StiffnessRegression:
         if index is not None:
             info["subset"] = f"{len(L)} of {len(loaded)} trajectories"
         try:
-            return cls.fit(loaded.arrays["K"][rows], L, loaded.demo_ids[rows], P, loaded.control_hz, alpha, info)
+            return cls.fit(loaded.arrays["K"][rows], L, loaded.demo_ids[rows], P, loaded.control_hz, alpha, info,
+                           objective)
         except ValueError as err:
             raise ReferenceError(f"dataset {path}, split {split}: {err}") from None
 
@@ -195,9 +230,10 @@ class StiffnessRegression:
     def to_dict(self) -> dict[str, Any]:
         return {
             "format": REFERENCE_FORMAT, "version": REFERENCE_VERSION, "kind": STIFFNESS_RIDGE,
-            "description": "ridge regression of log L_task [log N] on per-phase stiffness features, fitted on "
-                           "per-skill centred data; prediction = exp(intercept + ((features - mean) / scale) . "
+            "description": "ridge regression of log L_task (of objective) on per-phase stiffness features, fitted "
+                           "on per-skill centred data; prediction = exp(intercept + ((features - mean) / scale) . "
                            "coefficients)",
+            "objective": self.objective.to_dict(),
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
             "control_hz": self.control_hz,
             "phases": {"n_phases": self.n_phases, "method": self.info.get("phase_method"),
@@ -227,15 +263,21 @@ class StiffnessRegression:
         try:
             phases = data["phases"]
             info = dict(data.get("fit") or {}, phase_method=phases.get("method"))
+            objective = TaskObjective.from_dict(data.get("objective"))  # a file without one ranks the paper's
             return cls(int(phases["n_phases"]), data["mean"], data["scale"], data["coefficients"],
-                       float(data["intercept"]), float(data["control_hz"]), info, path)
+                       float(data["intercept"]), float(data["control_hz"]), info, path, objective)
         except (KeyError, TypeError) as err:
             raise ReferenceError(f"{path}: missing or malformed field {err}") from None
+        except ObjectiveError as err:
+            raise ReferenceError(f"{path}: field objective: {err}") from None
 
     def describe(self) -> dict[str, Any]:
-        return {"model": STIFFNESS_RIDGE, "ckpt": self.path or "fitted in memory", "n_phases": self.n_phases,
-                "alpha": self.info.get("alpha"), "fitted_on": self.info.get("dataset", {}).get("path"),
-                "fitted_split": self.info.get("split")}
+        out = {"model": STIFFNESS_RIDGE, "ckpt": self.path or "fitted in memory", "n_phases": self.n_phases,
+               "alpha": self.info.get("alpha"), "fitted_on": self.info.get("dataset", {}).get("path"),
+               "fitted_split": self.info.get("split")}
+        if self.objective != PAPER:  # named only when it is not the paper's, so earlier logs keep their keys
+            out["objective"] = self.objective.to_dict()
+        return out
 
 
 def load_reference(path: str | Path) -> StiffnessRegression:
@@ -337,6 +379,24 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot write {type(obj).__name__} to a reference JSON")
 
 
+def objective_preset(name: str, **tolerances: float | None) -> TaskObjective:
+    """The objective of preset ``name`` (conf/objective/<name>.yaml) with the ``tolerances`` that are given."""
+    import yaml
+
+    from dcm.configs import CONF_DIR
+
+    preset = CONF_DIR / "objective" / f"{name}.yaml"
+    if not preset.is_file():
+        known = sorted(p.stem for p in (CONF_DIR / "objective").glob("*.yaml"))
+        raise ReferenceError(f"--objective {name}: no such preset; known: {', '.join(known)}")
+    values = yaml.safe_load(preset.read_text()) or {}
+    values.update({k: v for k, v in tolerances.items() if v is not None})
+    try:
+        return TaskObjective.from_config(values)
+    except ObjectiveError as err:
+        raise ReferenceError(f"--objective {name}: {err}") from None
+
+
 # ----------------------------------------------------------------------------------------------- CLI
 def main(argv: list[str] | None = None) -> Path:
     """``python -m dcm.models.references fit --dataset <h5> --out <json> [--split train] [--alpha a]``."""
@@ -352,20 +412,26 @@ def main(argv: list[str] | None = None) -> Path:
                      help="phases of the schedules (default: from the trajectories' phase_stiffness_Npm)")
     fit.add_argument("--task-from-s", type=float, default=0.0,
                      help="learn the L_task of the force from this time [s] on (1.0: without the approach)")
+    fit.add_argument("--objective", default="paper",
+                     help="the L_task to learn: a preset of conf/objective/ (paper | wipe; default: paper)")
+    fit.add_argument("--force-tolerance-N", type=float, default=None, help="objective wipe: its force tolerance")
+    fit.add_argument("--path-tolerance-m", type=float, default=None, help="objective wipe: its path tolerance")
     args = parser.parse_args(argv)
     quiet_libraries()
     if problem := write_problem(args.out):
         raise SystemExit(error_line(f"--out {args.out} cannot be written: {problem}"))
     try:
+        objective = objective_preset(args.objective, force_tolerance_N=args.force_tolerance_N,
+                                     path_tolerance_m=args.path_tolerance_m)
         model = StiffnessRegression.fit_dataset(args.dataset, args.split, args.alpha, args.n_phases,
-                                                task_from_s=args.task_from_s)
+                                                task_from_s=args.task_from_s, objective=objective)
     except ValueError as err:  # ReferenceError, DatasetError, StiffnessScheduleError
         raise SystemExit(error_line(err)) from None
     out = model.save(args.out)
     fitted = model.info["train_fit"]
     r = fitted["R_within_spearman"]
     print(f"fitted {STIFFNESS_RIDGE} on {model.info['n_trajectories']} trajectories / {model.info['n_skills']} "
-          f"skills (alpha={model.info['alpha']:g}); train within-skill Spearman "
+          f"skills (alpha={model.info['alpha']:g}, L_task: {model.objective.describe()}); train within-skill Spearman "
           f"{'nan' if not math.isfinite(r) else f'{r:.3f}'} over {fitted['R_within_n_skills']} skills -> {out}",
           file=sys.stderr)
     return out

@@ -68,7 +68,7 @@ def space_from_settings(stiffness: Mapping[str, Any], error: type[Exception] = V
 
     Generation and tuning both call this before any work, so a value beyond the controller's limits fails at
     once, naming the setting and the limit (raised as ``error``)."""
-    from dcm.cli import check_integer, check_number
+    from dcm.configs import check_integer, check_number
     from dcm.control import DAMPING_MODES, StiffnessLimits
 
     limits = StiffnessLimits()

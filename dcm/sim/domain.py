@@ -7,10 +7,12 @@ transfer can be studied without a robot.
 
 Who applies what: the embodiment applies the physical parts when it builds its MuJoCo model
 (``friction_scale``, ``solref_timeconst_scale``, ``joint_frictionloss``, ``joint_damping``,
-``tool_mass_scale``); the ``Simulator`` applies sensing (``ft_bias``, ``ft_noise_std``, ``ft_lowpass_hz``)
-and ``latency_steps``, and draws each rollout's bowl placement and friction (``bowl_offset_std_m``, ``bowl_shift_xy_std_m``,
-``bowl_tilt_std_deg``, ``bowl_friction_std``: the bowl re-placed between trials, its surface changing) and
-the F/T sensor's bias of that trial (``ft_bias_std``). All of these default to 0 (off).
+``tool_mass_scale``); the Panda applies ``joint_friction`` (the arm's identified joint friction) at every physics
+step, and the tool embodiment, which has no arm joints, refuses it; the ``Simulator`` applies sensing
+(``ft_bias``, ``ft_noise_std``, ``ft_lowpass_hz``) and ``latency_steps``, and draws each rollout's bowl
+placement and friction (``bowl_offset_std_m``, ``bowl_shift_xy_std_m``, ``bowl_tilt_std_deg``,
+``bowl_friction_std``: the bowl re-placed between trials, its surface changing) and the F/T sensor's bias of
+that trial (``ft_bias_std``). All of these default to 0 (off); ``joint_friction`` to ``"none"``.
 """
 
 from __future__ import annotations
@@ -25,6 +27,11 @@ from dcm.sim.spec_io import SpecIO
 # Fields drawn anew for every rollout, so the same inputs give a distribution of forces.
 PER_ROLLOUT_SPREADS = ("bowl_offset_std_m", "bowl_friction_std", "bowl_shift_xy_std_m", "bowl_tilt_std_deg",
                        "ft_bias_std")
+# Models of the arm's own joint friction (``DomainSpec.joint_friction``); ``dcm.sim.panda`` implements them.
+JOINT_FRICTION_MODELS = ("none", "gaz2019")
+# Fields left out of ``to_dict`` while at these defaults, so that domains from before they existed keep their
+# fingerprints.
+_OPTIONAL_DEFAULTS = {"joint_friction": "none", "joint_friction_scale": 1.0}
 
 
 class DomainSpecError(ValueError):
@@ -58,6 +65,12 @@ class DomainSpec(SpecIO):
     (independent normals): on a curved bowl the force either causes depends on where the path runs.
     ``ft_bias_std`` [N, N, N, N·m, N·m, N·m] is the spread of a sensor bias drawn once per rollout (an
     external-wrench estimate or a wrist sensor whose offset drifts between trials), on top of ``ft_bias``.
+    ``joint_friction`` names a model of the arm's own joint friction, which the controller does not know:
+    ``"none"`` (default) or ``"gaz2019"``, the sigmoid friction per joint that Gaz et al. (RA-L 2019) identified
+    on a Panda, applied as a joint torque against the motion at every physics step (Panda only).
+    ``joint_friction_scale`` (dimensionless, >= 0) multiplies that model's torque; 0 is the same as ``"none"``.
+    Unlike ``joint_frictionloss`` (one Coulomb level for all joints, MuJoCo's constraint), it differs per joint
+    and grows smoothly with the joint speed.
     """
 
     spec_kind: ClassVar[str] = "domain"
@@ -78,6 +91,8 @@ class DomainSpec(SpecIO):
     bowl_shift_xy_std_m: float = 0.0
     bowl_tilt_std_deg: float = 0.0
     ft_bias_std: tuple[float, ...] | float = 0.0
+    joint_friction: str = "none"
+    joint_friction_scale: float = 1.0
 
     def __post_init__(self) -> None:
         self.ft_bias = _vec6(self.ft_bias, "ft_bias")
@@ -86,6 +101,14 @@ class DomainSpec(SpecIO):
         self.validate()
 
     def validate(self) -> None:
+        if not isinstance(self.joint_friction, str) or self.joint_friction not in JOINT_FRICTION_MODELS:
+            raise DomainSpecError(f"domain.joint_friction = {self.joint_friction!r} is not a known model; "
+                                  f"known: {list(JOINT_FRICTION_MODELS)}")
+        try:
+            self.joint_friction_scale = float(self.joint_friction_scale)
+        except (TypeError, ValueError):
+            raise DomainSpecError(f"domain.joint_friction_scale = {self.joint_friction_scale!r} must be a number "
+                                  ">= 0") from None
         checks = {
             "friction_scale": (self.friction_scale, 0.0, 5.0),
             "solref_timeconst_scale": (self.solref_timeconst_scale, 0.2, 5.0),
@@ -98,6 +121,7 @@ class DomainSpec(SpecIO):
             "bowl_friction_std": (self.bowl_friction_std, 0.0, 1.0),
             "bowl_shift_xy_std_m": (self.bowl_shift_xy_std_m, 0.0, 0.02),
             "bowl_tilt_std_deg": (self.bowl_tilt_std_deg, 0.0, 5.0),
+            "joint_friction_scale": (self.joint_friction_scale, 0.0, 10.0),
         }
         for key, (value, low, high) in checks.items():
             if not np.isfinite(value) or not (low <= value <= high):
@@ -108,6 +132,11 @@ class DomainSpec(SpecIO):
             raise DomainSpecError(f"domain.ft_noise_std = {self.ft_noise_std} must be >= 0")
         if min(self.ft_bias_std) < 0:
             raise DomainSpecError(f"domain.ft_bias_std = {self.ft_bias_std} must be >= 0")
+
+    @property
+    def has_joint_friction(self) -> bool:
+        """Whether the arm meets a joint friction model (a zero scale is none: the default physics, untouched)."""
+        return self.joint_friction != "none" and self.joint_friction_scale > 0
 
     @property
     def has_sensing_effects(self) -> bool:
@@ -130,11 +159,15 @@ class DomainSpec(SpecIO):
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields as plain values. The per-rollout spreads are left out while they are 0, so a domain without
-        them fingerprints as if they did not exist and the datasets and tuning logs of such domains stay valid."""
+        """The fields as plain values. The per-rollout spreads are left out while they are 0, and the joint friction
+        fields while at their defaults, so a domain without them fingerprints as if they did not exist and the
+        datasets and tuning logs of such domains stay valid."""
         out = asdict(self)
         for key in PER_ROLLOUT_SPREADS:
             if not np.any(out[key]):
+                del out[key]
+        for key, default in _OPTIONAL_DEFAULTS.items():
+            if out[key] == default:
                 del out[key]
         out["ft_bias"] = list(self.ft_bias)
         out["ft_noise_std"] = list(self.ft_noise_std)
@@ -144,7 +177,7 @@ class DomainSpec(SpecIO):
 
     @classmethod
     def preset(cls, name: str) -> DomainSpec:
-        """``"nominal"``, ``"realistic"`` or ``"replaced_bowl"`` (the benchmark task's)."""
+        """``"nominal"``, ``"realistic"``, ``"replaced_bowl"`` (the benchmark task's) or ``"joint_friction"``."""
         if name not in PRESETS:
             raise DomainSpecError(f"unknown domain preset {name!r}; known: {sorted(PRESETS)}")
         return cls.from_dict(PRESETS[name])
@@ -191,6 +224,9 @@ PRESETS: dict[str, dict[str, Any]] = {
         "ft_noise_std": [0.2, 0.2, 0.2, 0.0, 0.0, 0.0],
         "ft_bias_std": [0.1, 0.1, 0.1, 0.0, 0.0, 0.0],
     },
+    # The nominal simulator with the arm's own joint friction as Gaz et al. (RA-L 2019) identified it on a Panda
+    # (docs/benchmark_task.md, "The arm's own friction"). Panda only: the tool embodiment has no arm joints.
+    "joint_friction": {"name": "joint_friction", "joint_friction": "gaz2019"},
 }
 
 

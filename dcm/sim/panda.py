@@ -19,6 +19,9 @@ with ``K`` the diagonal Cartesian stiffness (N/m, N·m/rad) and ``D`` the dampin
   payload does on a real arm.
 * Coriolis/centrifugal and the nullspace posture torque vary slowly at wiping speeds: they are computed once
   per control period and held (``qfrc_applied``).
+* The arm's own joint friction (``domain.joint_friction``, off by default) is a physical torque, not part of
+  the controller: it is computed from the joint velocities at every physics step and added to ``qfrc_applied``
+  between MuJoCo's two step halves, and neither gravity compensation nor the attractor knows it.
 
 Two reference variants exist only to validate that choice (``controller="python"`` evaluates the whole law in
 Python at every physics step, as franka_ros does; ``slow_terms="substep"`` refreshes Coriolis and nullspace
@@ -62,6 +65,30 @@ BOWL_ORIGIN_WORLD = (0.5, 0.0, 0.1)
 NULLSPACE_STIFFNESS_NMPRAD = 2.0
 # Stiffness the actuators hold right after reset, before the first command arrives.
 RESET_STIFFNESS = np.array([500.0, 500.0, 500.0, 20.0, 20.0, 20.0])
+
+
+# Joint friction of a Panda as identified by Gaz, Cognetti, Oliva, Robuffo Giordano and De Luca, "Dynamic
+# identification of the Franka Emika Panda robot with retrieval of feasible parameters using penalty-based
+# optimization", IEEE RA-L 2019; the values of marcocognetti/FrankaEmikaPandaDynModel,
+# matlab/dyn_model_panda/get_FrictionTorque.m (the same in cpp/.../franka_model.h), joints 1-7:
+#   tau_f,i(qdot) = phi1 / (1 + exp(-phi2 (qdot_i + phi3))) - phi1 / (1 + exp(-phi2 phi3))
+# tau_f is the friction torque the motor must supply on top of the rigid-body dynamics, so the torque friction
+# exerts on the joint is -tau_f. It is 0 at rest and increases with qdot: it always opposes the motion.
+GAZ2019_PHI1_NM = np.array([0.54615, 0.87224, 0.64068, 1.2794, 0.83904, 0.30301, 0.56489])
+GAZ2019_PHI2_SPRAD = np.array([5.1181, 9.0657, 10.136, 5.5903, 8.3469, 17.133, 10.336])
+GAZ2019_PHI3_RADPS = np.array([0.039533, 0.025882, -0.04607, 0.036194, 0.026226, -0.021047, 0.0035526])
+
+
+def gaz2019_friction_torque(qvel_radps: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """The identified friction torque tau_f [N·m] of the seven joints at joint velocities ``qvel_radps``, times
+    ``scale``: what the motors must supply; the joint feels its negative.
+
+    Written with tanh (1 / (1 + exp(-z)) = (1 + tanh(z / 2)) / 2), which cannot overflow at any speed.
+    """
+    qvel = np.asarray(qvel_radps, dtype=np.float64)
+    half_slope = 0.5 * GAZ2019_PHI2_SPRAD
+    return (0.5 * scale * GAZ2019_PHI1_NM) * (
+        np.tanh(half_slope * (qvel + GAZ2019_PHI3_RADPS)) - np.tanh(half_slope * GAZ2019_PHI3_RADPS))
 
 
 _GRAVITY_VEC = np.array([0.0, 0.0, GRAVITY_MPS2])
@@ -152,6 +179,8 @@ class PandaEmbodiment:
         self.controller = controller
         self.slow_terms = slow_terms
         self._held_slow = np.zeros(7)
+        # The arm's own joint friction, unknown to the controller: None when off (the default physics, untouched).
+        self._friction_scale = self.domain.joint_friction_scale if self.domain.has_joint_friction else None
 
         # The controller's model of the tool has the nominal mass; the simulated tool may be heavier.
         self.tool_mass_kg = self.tool.mass_kg * self.domain.tool_mass_scale
@@ -378,7 +407,7 @@ class PandaEmbodiment:
         sensor = d.sensordata[self._ft_slice]
         xmat = d.site_xmat[self._ft]
         contact = False
-        if self.controller == "actuator" and self.slow_terms == "period":
+        if self.controller == "actuator" and self.slow_terms == "period" and self._friction_scale is None:
             step = mujoco.mj_step
             for _ in range(self.n_substeps):
                 step(m, d)
@@ -386,15 +415,20 @@ class PandaEmbodiment:
                 racc += xmat
                 if d.ncon:
                     contact = True
-        else:  # reference variants: Python work at every physics step, between MuJoCo's two step halves
+        else:  # joint friction or a reference variant: Python work at every physics step, between MuJoCo's halves
             stiffness = np.asarray(stiffness, dtype=np.float64)
             damping = damping_from_stiffness(stiffness) if damping is None else np.asarray(damping, dtype=np.float64)
+            scale = self._friction_scale
             for _ in range(self.n_substeps):
                 mujoco.mj_step1(m, d)
                 if self.slow_terms == "substep":
                     self._slow_torques()
                 if self.controller == "python":
                     self._python_impedance(stiffness, damping)
+                elif scale is not None:
+                    d.qfrc_applied[:7] = self._held_slow
+                if scale is not None:  # at the velocity this step starts from
+                    d.qfrc_applied[:7] -= gaz2019_friction_torque(d.qvel[:7], scale)
                 mujoco.mj_step2(m, d)
                 acc += sensor
                 racc += xmat

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from dcm.cli import print_error
+from dcm.console import print_error
 from dcm.control import equal_time_phases, schedule_from_phases
+from dcm.shipped import SHIPPED_ROOT, shipped_path
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_DEMO = REPO / "data" / "demos" / "spiral.yaml"
+DEFAULT_DEMO = SHIPPED_ROOT / "data" / "demos" / "spiral.yaml"
 # [Kx, Ky, Kz] per phase [N/m]: stiff start, compliant middle, medium end.
 DEFAULT_PHASES_NPM = [[1200.0, 1200.0, 1000.0], [300.0, 300.0, 400.0], [700.0, 700.0, 700.0]]
 
@@ -42,7 +42,7 @@ def render(
     from dcm.sim.domain import DomainSpec
     from dcm.sim.rollout import Simulator
 
-    spec = DemoSpec.load(demo_path)
+    spec = DemoSpec.load(shipped_path(demo_path))
     sim = Simulator(embodiment, spec.bowl, DomainSpec.preset(domain), seed=seed)
     t0 = time.perf_counter()
     demo = sim.record_demo(spec)

@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from dcm.control import damping_from_stiffness
-from dcm.sim.domain import DomainSpec
+from dcm.sim.domain import DomainSpec, DomainSpecError
 from dcm.sim.embodiment import CONTROL_DT_S, PHYSICS_DT_S, StepResult
 from dcm.sim.geometry import BowlSpec
 from dcm.sim.scene import add_bowl
@@ -37,7 +37,13 @@ ACTUATOR_FORCE_LIMIT_N = 400.0
 
 
 def build_tool_spec(bowl: BowlSpec, domain: DomainSpec, physics_dt: float = PHYSICS_DT_S) -> mujoco.MjSpec:
-    """The MuJoCo world of the tool embodiment: bowl + slide-jointed tool + sensors + actuators."""
+    """The MuJoCo world of the tool embodiment: bowl + slide-jointed tool + sensors + actuators.
+
+    Refuses ``domain.joint_friction``: it models the joints of an arm, which this tool does not have.
+    """
+    if domain.joint_friction != "none":
+        raise DomainSpecError(f"domain.joint_friction = {domain.joint_friction!r} models an arm's joints, which "
+                              "the tool embodiment has none of; use embodiment='panda'")
     spec = mujoco.MjSpec()
     spec.modelname = "dcm_tool"
     spec.option.timestep = physics_dt

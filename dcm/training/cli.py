@@ -19,8 +19,17 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from dcm.cli import CONF_DIR, DeviceError, check_accelerator, error_line, print_error, quiet_libraries, to_run_log
-from dcm.training.checks import TrainConfigError, check_data_argument, check_dataset_overrides, check_resume_argument
+from dcm.configs import CONF_DIR, register_resolvers
+from dcm.console import error_line, print_error, quiet_libraries, to_run_log
+from dcm.devices import DeviceError, check_accelerator
+from dcm.training.checks import (
+    TrainConfigError,
+    check_data_argument,
+    check_dataset_overrides,
+    check_resume_argument,
+    check_trainer,
+    run_objective,
+)
 from dcm.training.run_dir import SUMMARY_FILE
 
 # Third-party lines that say nothing about this run, each silenced by its logger or its exact message.
@@ -34,7 +43,7 @@ class _DropNotices(logging.Filter):
 
 
 def quiet_notices() -> None:
-    """Silence the library notices a training run adds to those :func:`dcm.cli.quiet_libraries` hushes, and
+    """Silence the library notices a training run adds to those :func:`dcm.console.quiet_libraries` hushes, and
     nothing else."""
     for name in _NOTICE_LOGGERS:
         logger = logging.getLogger(name)
@@ -44,6 +53,19 @@ def quiet_notices() -> None:
     warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated")
     # ForceMetricsCallback's advice on R_within; SelectionCheckpoint gives it, knowing the monitor
     warnings.filterwarnings("ignore", message=r"(val|test)/R_within is undefined")
+
+
+def one_handler_for_lightning() -> None:
+    """Leave Lightning's log records to the handlers Hydra gave the root logger (the console and train.log).
+
+    Importing ``lightning`` gives its package logger a console handler of its own, and its records still
+    propagate to the root logger: under Hydra every Lightning line, the model summary too, printed twice."""
+    if not logging.getLogger().handlers:  # no Hydra logging (a library call): Lightning's own handler is the only one
+        return
+    lightning = logging.getLogger("lightning")
+    for handler in list(lightning.handlers):
+        if type(handler) is logging.StreamHandler:
+            lightning.removeHandler(handler)
 
 
 def _stop(err: Exception) -> None:
@@ -66,9 +88,14 @@ def hydra_main(cfg: DictConfig) -> float | None:
     try:
         check_dataset_overrides(HydraConfig.get().overrides.task)
         check_accelerator(cfg.trainer.get("accelerator", "auto"))  # before Lightning's import, which takes seconds
+        if not cfg.get("resume"):  # a resumed run's trainer is its saved one, checked once the overrides apply
+            check_trainer(cfg.trainer, str(cfg.checkpoint.monitor))
+            run_objective(cfg)
     except (TrainConfigError, DeviceError) as err:
         _stop(err)
     from dcm.training.train import USER_ERRORS, closing_summary, resolve_resume, reuse_run, train  # Lightning: slow
+
+    one_handler_for_lightning()
 
     try:
         if cfg.get("resume"):
@@ -83,7 +110,10 @@ def hydra_main(cfg: DictConfig) -> float | None:
                 summary = train(cfg, run_dir)
     except USER_ERRORS as err:
         _stop(err)
-    print(closing_summary(summary), flush=True)
+    from lightning.pytorch.utilities import rank_zero_only
+
+    if rank_zero_only.rank == 0:  # under DDP every rank gets here; the summary is printed once
+        print(closing_summary(summary), flush=True)
     score = summary.get("best_score")
     return None if score is None or not math.isfinite(score) else float(score)
 
@@ -98,6 +128,7 @@ def main() -> None:
     except TrainConfigError as err:
         print_error(err)
         sys.exit(2)
+    register_resolvers()  # the configs' ${dcm.*} resolvers, read by Hydra before hydra_main runs
     hydra_main()
 
 

@@ -12,7 +12,9 @@ sense of Luhman & Luhman 2021), so one call keeps both the order of schedules an
 1. **Pairs:** for every trial of the dataset's train split and ``--draws`` seeded start noises z, the teacher's
    DDIM chain over ``--teacher-steps`` steps (eta = 0, deterministic) from z to its sample x0.
 2. **Student:** the teacher's (EMA) weights, trained to return x0 from (condition, z) at t = T-1 by MSE in
-   normalised units (AdamW, cosine decay, seeded batches).
+   normalised units (AdamW, cosine decay, seeded batches). Noise and samples span the teacher's whole target
+   (the wrench, and for a teacher that predicts the pose its translation too), so the student predicts what
+   the teacher does, for the same objective.
 3. **Checkpoint:** a DCM with ``sampler=one_step`` and ``input_scaling=unit``, whose card keeps the teacher's
    and adds how it was distilled and the student's metrics on the valid split (:func:`dcm.evaluate.evaluate`),
    which ``tune.py`` compares its predictions with. ``tune.py ckpt=<student>`` runs it as it is
@@ -34,7 +36,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from dcm.cli import print_error
+from dcm.console import print_error
+from dcm.shipped import shipped_path
 
 WORK_SUFFIX = ".work"
 
@@ -86,7 +89,8 @@ def train_conditions(model: Any, dataset: Path) -> Any:
     from dcm.models.predict import check_dataset
 
     loaded = load_dataset(dataset, split="train")
-    check_dataset(model, *dataset_channels(loaded), loaded.control_hz, source=f"dataset {dataset}")
+    check_dataset(model, *dataset_channels(loaded, model.cfg.target_fields), loaded.control_hz,
+                  source=f"dataset {dataset}")
     if not len(loaded.names):
         raise DistillError(f"{dataset}: no trials in its train split")
     with torch.no_grad():
@@ -94,12 +98,12 @@ def train_conditions(model: Any, dataset: Path) -> Any:
 
 
 def teacher_pairs(teacher: Any, cond_n: Any, settings: DistillSettings, progress: bool = True) -> tuple[Any, Any]:
-    """(draws, N, H, 6) start noises z and the teacher's deterministic samples x0 from them, normalised units."""
+    """(draws, N, H, C) start noises z and the teacher's deterministic samples x0 from them, normalised units;
+    C is the teacher's target width (``out_dim``: the wrench, and the translation for a pose model)."""
     import torch
     from tqdm import tqdm
 
     from dcm.models import diffusion
-    from dcm.models.force_model import OUT_DIM
 
     scheduler = diffusion.make_scheduler("ddim", teacher.noise_schedule, teacher.cfg.diffusion_steps,
                                          teacher.cfg.prediction_type)
@@ -110,7 +114,7 @@ def teacher_pairs(teacher: Any, cond_n: Any, settings: DistillSettings, progress
     net = diffusion.scale_noisy_input(teacher.inference_net, scheduler, teacher.cfg.input_scaling)
     N, H = cond_n.shape[:2]
     gen = torch.Generator().manual_seed(settings.seed)
-    z = torch.randn((settings.draws, N, H, OUT_DIM), generator=gen)
+    z = torch.randn((settings.draws, N, H, teacher.out_dim), generator=gen)
     x0 = torch.empty_like(z)
     rows = max(1, int(teacher.cfg.eval_batch_size))
     bar = tqdm(total=settings.draws * N, unit="sample", desc="teacher samples", disable=not progress)
@@ -203,8 +207,8 @@ def distill(teacher_path: Path, dataset: Path, out: Path, settings: DistillSetti
     """Write the one-step student of ``teacher_path`` to ``out`` (see the module's docstring); returns ``out``."""
     import torch
 
-    from dcm.cli import resolve_device
     from dcm.data.atomic import write_problem
+    from dcm.devices import resolve_device
     from dcm.evaluate import evaluate
     from dcm.models.checkpoint import CARD_KEY, export_checkpoint
     from dcm.models.predict import load_model
@@ -257,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         settings = DistillSettings(**{name: getattr(args, name) for name in asdict(defaults)})
-        out = distill(args.teacher, args.dataset, args.out, settings, args.device, not args.no_progress)
+        out = distill(Path(shipped_path(args.teacher)), args.dataset, args.out, settings, args.device, not args.no_progress)
     except (ValueError, OSError) as err:
         return print_error(err)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")

@@ -14,7 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from dcm.cli import print_error
+from dcm.console import print_error
 from dcm.models.checkpoint import export_checkpoint
 from dcm.models.configuration import ModelInputError
 from dcm.models.predict import load_model

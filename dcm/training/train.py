@@ -26,26 +26,32 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import get_class, to_absolute_path
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
-from dcm.cli import check_accelerator, config_diff
+from dcm.configs import config_diff
+from dcm.control.objectives import PAPER, TaskObjective
 from dcm.data.datamodule import DCMDataModule
 from dcm.data.generate import GenerationError
 from dcm.data.schema import read_root_attrs
+from dcm.devices import check_accelerator
 from dcm.models.callbacks import ForceMetricsCallback, RandomStateCallback, RunETACallback, metric_names
 from dcm.models.checkpoint import checkpoint_kind, read_checkpoint
 from dcm.models.configuration import CheckpointKindError
 from dcm.models.dcm import DCM
 from dcm.models.force_model import ForceModel
+from dcm.models.metrics import ranking_shortfall, undefined_metrics
 from dcm.models.nets import get_score_net_class
+from dcm.shipped import shipped_path
 from dcm.training import run_dir as rd
-from dcm.training.checks import TrainConfigError, check_resume_dir
+from dcm.training.checks import TrainConfigError, check_resume_dir, check_trainer, run_objective
 
 log = logging.getLogger(__name__)
 
 # Fields a fine-tuning run may change; everything else (net, T, schedule, normaliser) comes from init_from.
+# The objective is one: it says what the task term and checkpoint selection rank, not what the net computes.
 FINETUNE_FIELDS = ("lr", "weight_decay", "warmup_steps", "lr_schedule", "ema_decay", "eval_batch_size",
-                   "sampler", "sampling_steps", "n_samples", "task_weight", "task_from_s")
+                   "sampler", "sampling_steps", "n_samples", "task_weight", "task_from_s", "objective")
 PRESET_FILE = "data/{name}.h5"  # a preset's own dataset file, as conf/train.yaml's data.path defaults to it
 # Checkpoint names abbreviate the metrics selected on most often; any other is named in full.
 METRIC_ABBREVIATIONS = {"val/R_within": "Rw", "val/R_pooled": "Rp"}
@@ -53,7 +59,7 @@ METRIC_ABBREVIATIONS = {"val/R_within": "Rw", "val/R_pooled": "Rp"}
 LEGACY_DATA_KEYS = ("preset", "generate_overrides", "stage", "usage_rate", "seed")
 # Test metrics the closing summary prints (summary.json holds them all).
 SUMMARY_TEST_METRICS = ("R_within", "R_within_spearman", "R_pooled", "force_rmse_N", "force_rmse_ratio_copy",
-                        "L_MSE")
+                        "path_rmse_m", "path_rmse_ratio_copy", "L_MSE")
 
 
 # What a user can get wrong (settings, files): reported in one line. Every dcm input error is a ValueError
@@ -95,6 +101,9 @@ def dataset_path(cfg: DictConfig) -> Path:
     if own is None or path != own:
         raise TrainConfigError(f"data.path={path} does not exist (only a preset's own file "
                                f"{PRESET_FILE.format(name='<name>')} is generated)")
+    if rank_zero_only.rank != 0:  # the tasks of a cluster job start at once: one writer, or a torn file
+        raise TrainConfigError(f"data.path={path} does not exist; with several tasks per job, generate it before "
+                               f"submitting: dcm-generate dataset={cfg.dataset.name}")
     log.info("dataset %s is absent: generating preset %r", path, str(cfg.dataset.name))
     from dcm.data.generate import ensure_dataset  # imports the simulator: only when needed
 
@@ -103,12 +112,21 @@ def dataset_path(cfg: DictConfig) -> Path:
     return Path(ensure_dataset(str(cfg.dataset.name), path, overrides))
 
 
+def target_fields(cfg: DictConfig) -> str:
+    """What the run's model predicts (``model.target_fields``; a fine-tuned model's own, from ``init_from``), so
+    that the data give the target it learns."""
+    if cfg.get("init_from"):
+        hparams = read_checkpoint(init_checkpoint(cfg)).get("hyper_parameters") or {}
+        return str(hparams.get("target_fields", "force"))
+    return str(cfg.model.get("target_fields", "force"))
+
+
 def build_datamodule(cfg: DictConfig, path: Path) -> DCMDataModule:
     d = cfg.data
     return DCMDataModule(path, stage=cfg.stage, usage_rate=cfg.usage_rate, seed=cfg.seed,
                          batch_size=d.batch_size, eval_batch_size=d.eval_batch_size, num_workers=d.num_workers,
                          expect_control_hz=d.get("expect_control_hz"), n_eval=d.get("n_eval"),
-                         skill_group=d.get("skill_group", 0))
+                         skill_group=d.get("skill_group", 0), target_fields=target_fields(cfg))
 
 
 def _has_split(path: Path, split: str) -> bool:
@@ -124,7 +142,7 @@ def _has_split(path: Path, split: str) -> bool:
 # -------------------------------------------------------------------------------------------------- model
 def init_checkpoint(cfg: DictConfig) -> Path:
     """``init_from`` as an absolute path, refused unless it holds the selected model's kind."""
-    ckpt = Path(to_absolute_path(str(cfg.init_from)))
+    ckpt = Path(to_absolute_path(shipped_path(str(cfg.init_from))))  # models/... from any directory
     kind, selected = checkpoint_kind(ckpt), get_class(str(cfg.model._target_)).model_kind
     if kind != selected:
         raise CheckpointKindError(f"init_from={ckpt} holds a {kind!r} model but model={selected!r} "
@@ -132,9 +150,19 @@ def init_checkpoint(cfg: DictConfig) -> Path:
     return ckpt
 
 
-def new_model(cfg: DictConfig, data_spec: dict[str, Any] | None = None) -> ForceModel:
-    """The untrained model ``cfg.model`` names, with the ``net`` (and, for a DCM, ``schedule``) groups passed in."""
+def model_config(cfg: DictConfig) -> dict[str, Any]:
+    """``cfg.model`` as plain data, with the run's ``objective`` group (absent from a config saved before it:
+    the paper's) as the model's ``objective``."""
     model_cfg: dict[str, Any] = OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[assignment]
+    if cfg.get("objective") is not None:
+        model_cfg["objective"] = TaskObjective.from_config(cfg.objective).to_dict()
+    return model_cfg
+
+
+def new_model(cfg: DictConfig, data_spec: dict[str, Any] | None = None) -> ForceModel:
+    """The untrained model ``cfg.model`` names, with the ``net`` (and, for a DCM, ``schedule``) groups and the
+    ``objective`` passed in."""
+    model_cfg = model_config(cfg)
     cls: type[ForceModel] = get_class(model_cfg.pop("_target_"))
     if issubclass(cls, DCM):
         model_cfg["schedule"] = OmegaConf.to_container(cfg.schedule, resolve=True)
@@ -144,7 +172,7 @@ def new_model(cfg: DictConfig, data_spec: dict[str, Any] | None = None) -> Force
 
 def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
     """A fresh model (normaliser fitted on the training split), or one initialised from ``init_from``."""
-    model_cfg: dict[str, Any] = OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[assignment]
+    model_cfg = model_config(cfg)
     cls: type[ForceModel] = get_class(model_cfg.pop("_target_"))
     if cfg.stage == "finetune" and not cfg.init_from:
         raise TrainConfigError("stage=finetune needs init_from=<checkpoint of the pre-trained model>")
@@ -190,15 +218,16 @@ def checkpoint_filename(checkpoint_cfg: Mapping[str, Any]) -> str:
     return str(given)
 
 
-def check_monitor(checkpoint_cfg: Mapping[str, Any], task_term: bool) -> None:
-    """Refuse a ``checkpoint.monitor`` no callback logs, or a ``checkpoint.mode`` that is not min/max, before
-    training: Lightning finds either only at the first validation, epochs later, with a traceback."""
+def check_monitor(checkpoint_cfg: Mapping[str, Any], task_term: bool, target_fields: str = "force") -> None:
+    """Refuse a ``checkpoint.monitor`` no callback logs for a model of ``target_fields`` (the path metrics are
+    a pose model's), or a ``checkpoint.mode`` that is not min/max, before training: Lightning finds either only
+    at the first validation, epochs later, with a traceback."""
     mode = checkpoint_cfg.get("mode")
     if mode not in ("min", "max"):
         raise TrainConfigError(f"checkpoint.mode={mode}: must be min or max")
     monitor = str(checkpoint_cfg["monitor"])
     losses = ("loss", "loss_force", "loss_task") if task_term else ("loss",)
-    logged = [f"val/{name}" for name in (*metric_names(), *losses)]
+    logged = [f"val/{name}" for name in (*metric_names(target_fields), *losses)]
     if monitor not in logged and not monitor.startswith("train/loss"):
         raise TrainConfigError(f"checkpoint.monitor={monitor}: not a logged metric; one of {', '.join(logged)}")
 
@@ -208,11 +237,26 @@ class SelectionCheckpoint(ModelCheckpoint):
 
     Lightning ranks a NaN as the worst score yet keeps it while fewer than k files exist, so an undefined
     metric would "select" the first epochs. Here such epochs are skipped (the run then falls back on
-    last.ckpt) and the user is told once what to monitor instead."""
+    last.ckpt) and the user is told once what to monitor instead, unless ``told`` (the run said so at its
+    start). It counts the validations it saw (``validations``, kept in the checkpoint), so a run's summary
+    can tell "undefined at every validation" from "no validation ran"."""
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, told: bool = False, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._warned_undefined = False
+        self._warned_undefined = told
+        self.validations = 0
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not trainer.sanity_checking:
+            self.validations += 1
+        super().on_validation_end(trainer, pl_module)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {**super().state_dict(), "validations": self.validations}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        super().load_state_dict(state_dict)
+        self.validations = int(state_dict.get("validations", 0))
 
     def check_monitor_top_k(self, trainer: L.Trainer, current: torch.Tensor | None = None) -> bool:
         if current is not None and not bool(torch.isfinite(current)):
@@ -235,13 +279,16 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if resuming:
         read_checkpoint(last)  # plain data only: a file that would run code is refused here, in one line
     filename = checkpoint_filename(cfg.checkpoint)
-    check_monitor(cfg.checkpoint, task_term=float(cfg.model.get("task_weight") or 0.0) > 0)
+    run_objective(cfg)
+    check_monitor(cfg.checkpoint, task_term=float(cfg.model.get("task_weight") or 0.0) > 0,
+                  target_fields=target_fields(cfg))
+    check_trainer(cfg.trainer, str(cfg.checkpoint.monitor))
     run_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(int(cfg.seed), workers=True)
 
     path = dataset_path(cfg)
     read_root_attrs(path)  # fail fast on a file that is not a dcm dataset
-    if not resuming:
+    if not resuming and rank_zero_only.rank == 0:  # under DDP every rank runs train(); one writes the run dir
         rd.write_config(run_dir, planned_config(cfg))
 
     dm = build_datamodule(cfg, path)
@@ -251,9 +298,13 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     model = build_model(cfg, dm)
     check_task_batches(model, dm)
 
-    checkpoint = SelectionCheckpoint(dirpath=ckpt_dir, monitor=cfg.checkpoint.monitor, mode=cfg.checkpoint.mode,
+    monitor = str(cfg.checkpoint.monitor)
+    if shortfall := split_shortfall(monitor, dm, "valid"):
+        log.warning("checkpoint.monitor=%s %s: no checkpoint can be selected on it, the run keeps its last one%s",
+                    monitor, shortfall, "; use checkpoint.monitor=val/R_pooled" if "per skill" in shortfall else "")
+    checkpoint = SelectionCheckpoint(dirpath=ckpt_dir, monitor=monitor, mode=cfg.checkpoint.mode,
                                      save_top_k=int(cfg.checkpoint.save_top_k), save_last=False,
-                                     filename=filename, auto_insert_metric_name=False)
+                                     filename=filename, auto_insert_metric_name=False, told=shortfall is not None)
     # last.ckpt after every training epoch (not only every validation), so a killed run loses little
     last_checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename=rd.LAST_CHECKPOINT_STEM, monitor=None,
                                       save_top_k=1, every_n_epochs=1, save_on_train_epoch_end=True,
@@ -269,39 +320,68 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     # the best on the monitor, else (a monitor undefined at every validation) the last; published as best.ckpt
     selected = Path(checkpoint.best_model_path) if checkpoint.best_model_path else (last if last.exists() else None)
     best_score = checkpoint.best_model_score if checkpoint.best_model_path else None
-    if selected is not None and trainer.is_global_zero:
+    if selected is None:  # e.g. trainer.max_time ran out within the first epoch
+        raise TrainConfigError(f"the run stopped after {trainer.global_step} step(s), before its first epoch ended "
+                               f"(trainer.max_time={cfg.trainer.get('max_time')}): no checkpoint was written; give it "
+                               "more time")
+    if trainer.is_global_zero:
         rd.publish_best(run_dir, selected)
     summary: dict[str, Any] = {
         "run_dir": str(run_dir), "model": model.model_kind, "stage": cfg.stage, "dataset": str(path),
         "n_train_used": len(dm.split("train")), "n_train_total": dm.n_train_total, "usage_rate": cfg.usage_rate,
         "seed": int(cfg.seed), "epochs": int(trainer.current_epoch), "global_step": int(trainer.global_step),
-        "best_checkpoint": str(rd.best_checkpoint(run_dir)) if selected else "",
-        "selected_from": selected.name if selected else None, "monitor": cfg.checkpoint.monitor,
+        "best_checkpoint": str(rd.best_checkpoint(run_dir)), "selected_from": selected.name, "monitor": monitor,
         "best_score": None if best_score is None else float(best_score),
+        "validations": checkpoint.validations, "check_val_every_n_epoch": cfg.trainer.get("check_val_every_n_epoch"),
     }
-    if cfg.test_after_fit and selected and _has_split(path, "test"):
+    undefined = {}
+    if best_score is None and checkpoint.validations and (shortfall := split_shortfall(monitor, dm, "valid")):
+        undefined[monitor] = shortfall
+    if cfg.test_after_fit and _has_split(path, "test"):
         results = trainer.test(model, datamodule=dm, ckpt_path=str(selected), verbose=False, weights_only=True)
         summary["test"] = {k: float(v) for k, v in (results[0] if results else {}).items()}
+        undefined.update(undefined_metrics(summary["test"], dm.eval_set("test").skills.numpy(), "the test split",
+                                           prefix="test/"))
     elif cfg.test_after_fit:
-        log.warning("no test split in %s (or no checkpoint): skipping the test pass", path)
+        log.warning("no test split in %s: skipping the test pass", path)
+    summary["undefined"] = undefined
     if trainer.is_global_zero:
         rd.write_summary(run_dir, summary)
     return summary
 
 
+def split_shortfall(monitor: str, dm: DCMDataModule, split: str) -> str | None:
+    """Why ``split`` is too small to define the ranking metric ``monitor`` names (``val/R_within`` ...), else None."""
+    return ranking_shortfall(monitor.split("/", 1)[-1], dm.eval_set(split).skills.numpy(), f"the {split} split")
+
+
 def closing_summary(summary: Mapping[str, Any]) -> str:
-    """What a run ends with on stdout: the selected checkpoint, its score on the monitor, the test metrics."""
-    score = summary.get("best_score")
+    """What a run ends with on stdout: the selected checkpoint, its score on the monitor (or why it has none),
+    the test metrics (or why they are undefined)."""
+    score, monitor = summary.get("best_score"), summary.get("monitor")
+    undefined = summary.get("undefined") or {}
     source = f" ({summary['selected_from']})" if summary.get("selected_from") else ""
     lines = [f"selected checkpoint: {summary.get('best_checkpoint') or '(none)'}{source}"]
     if isinstance(score, (int, float)) and math.isfinite(score):
-        lines.append(f"  {summary.get('monitor')} = {score:.4f}")
+        lines.append(f"  {monitor} = {score:.4f}")
+    elif summary.get("validations") == 0:
+        lines.append(f"  no validation ran: the run stopped after {summary.get('epochs')} epoch(s), "
+                     f"{summary.get('global_step')} step(s), before the first at epoch "
+                     f"{summary.get('check_val_every_n_epoch')} (trainer.check_val_every_n_epoch), so none selected on "
+                     f"{monitor}: this is the last checkpoint; give the run more epochs, steps or time")
     else:
-        lines.append(f"  {summary.get('monitor')} was undefined at every validation: this is the last checkpoint")
+        why = f" ({undefined[monitor]})" if monitor in undefined else ""
+        lines.append(f"  {monitor} was undefined at every validation{why}: this is the last checkpoint")
     test = summary.get("test") or {}
-    shown = [f"{name} {test[f'test/{name}']:.4g}" for name in SUMMARY_TEST_METRICS if f"test/{name}" in test]
-    if shown:
-        lines.append(f"  test: {', '.join(shown)}")
+    values = ", ".join(f"{name} {test[f'test/{name}']:.4g}" for name in SUMMARY_TEST_METRICS
+                       if f"test/{name}" in test and f"test/{name}" not in undefined)
+    reasons: dict[str, list[str]] = {}
+    for name in SUMMARY_TEST_METRICS:
+        if (reason := undefined.get(f"test/{name}")) is not None:
+            reasons.setdefault(reason, []).append(name)
+    if values:
+        lines.append(f"  test: {values}")
+    lines += [f"  test {', '.join(names)} n/a: {reason}" for reason, names in reasons.items()]
     lines.append(f"  all metrics: {rd.summary_path(Path(str(summary.get('run_dir', '.'))))}")
     return "\n".join(lines)
 
@@ -347,13 +427,17 @@ def option_defaults(group: str, planned: dict[str, Any]) -> dict[str, Any]:
 
 
 def with_added_option_defaults(saved: dict[str, Any], planned: dict[str, Any]) -> dict[str, Any]:
-    """``saved`` with the model and net options it predates filled in, where ``planned`` keeps their defaults.
+    """``saved`` with the model and net options (and the objective group) it predates filled in, where ``planned``
+    keeps their defaults.
 
     A checkpoint written before an option existed loads with the option's default, so its run trained exactly
     that default. Without this, every option added to the model or the net would make every earlier run of a
     study "another config", finished or not.
     """
     out = dict(saved)
+    if "objective" not in saved and planned.get("objective") is not None:  # run before the objective group
+        if TaskObjective.from_config(planned["objective"]) == PAPER:  # which trained the paper's
+            out["objective"] = planned["objective"]
     for group in ("model", "net"):
         if not isinstance(planned.get(group), dict):
             continue
@@ -419,6 +503,7 @@ def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
             log.warning("resume: override %r names no key of the saved config", override)
         resumed.merge_with(OmegaConf.from_dotlist([override.lstrip("+")]))
     resumed.resume = str(run_dir)
+    check_trainer(resumed.trainer, str(resumed.checkpoint.monitor))  # before the saved config takes the overrides
     if extra:
         OmegaConf.save(resumed, saved, resolve=True)
     return resumed, run_dir
@@ -426,5 +511,6 @@ def resolve_resume(cfg: DictConfig) -> tuple[DictConfig, Path]:
 
 __all__ = ["FINETUNE_FIELDS", "USER_ERRORS", "SelectionCheckpoint", "TrainConfigError", "build_datamodule",
            "build_model", "check_monitor", "check_task_batches", "checkpoint_filename", "closing_summary",
-           "config_search_path", "dataset_path", "init_checkpoint", "new_model", "option_defaults", "planned_config",
-           "preset_path", "resolve_resume", "reuse_run", "train", "with_added_option_defaults", "with_dataset_group"]
+           "config_search_path", "dataset_path", "init_checkpoint", "model_config", "new_model", "option_defaults",
+           "planned_config", "preset_path", "resolve_resume", "reuse_run", "target_fields", "train",
+           "with_added_option_defaults", "with_dataset_group"]

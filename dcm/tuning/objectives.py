@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import compliance_loss, schedule_from_phases, task_loss
+from dcm.control import compliance_loss, schedule_from_phases
+from dcm.control.objectives import PAPER, TaskObjective
 
 
 @dataclass
@@ -28,12 +29,15 @@ class Skill:
     boundaries: np.ndarray  # (P + 1,) phase boundaries in control steps
     rot_Nmprad: float
     task_from_step: int = 0  # L_task counts the force from this step on (tune.task_from_s)
+    objective: TaskObjective = PAPER  # what a trial of this skill costs (conf/objective/)
 
     def trial_task_loss(self, trial: Any) -> float:
-        """A simulated trial's L_task [N] over the scored window."""
-        if self.task_from_step == 0:
-            return float(trial.L_task)
-        return float(task_loss(trial.force_obs, self.force_demo, self.task_from_step))
+        """A simulated trial's L_task over the scored window (inf where it failed)."""
+        return self.objective.trial_task_loss(trial, self.x_demo, self.force_demo, self.task_from_step)
+
+    def task_loss(self, force_obs: np.ndarray, x_obs: np.ndarray) -> float:
+        """L_task of one observed trial (H, 6) of this skill, as :meth:`trial_task_loss` scores a rollout."""
+        return float(self.objective.task_loss(force_obs, self.force_demo, x_obs, self.x_demo, self.task_from_step))
 
     def schedules(self, proposals: np.ndarray) -> np.ndarray:
         """(B, P, 3) per-phase stiffness in N/m -> (B, H, 6) schedules."""
@@ -42,6 +46,24 @@ class Skill:
 
 # Rows (proposals × diffusion samples) per predictor call on a CPU; see ModelObjective.calls.
 CPU_ROWS_PER_CALL = 64
+
+
+# batch_seed's ``first_trial`` is the index of a search's first trial of the batch, or one of these offsets for the
+# model's other predictions: they share one index space and do not collide, since every search stays below
+# SEARCH_TRIALS_LIMIT trials, the offsets lie above it and apart from each other, and round r's search (r >= 2)
+# starts at r * ROUND_BATCH.
+SEARCH_TRIALS_LIMIT = 2**31
+PLOT_BATCH = 2**31  # the figure's prediction of the best validated solution
+OBSERVED_BATCH = 2**39  # the robot loop's re-prediction of observed trials that were never proposed
+ROUND_BATCH = 2**40  # the robot loop's round searches
+
+
+def round_batch(round_index: int, first_trial: int) -> int:
+    """The ``first_trial`` of :func:`batch_seed` for trial ``first_trial`` of the robot loop's round
+    ``round_index`` search (round 1 is the robot-free search itself, seeded by its own trial indices)."""
+    if not 0 <= first_trial < SEARCH_TRIALS_LIMIT:
+        raise ValueError(f"trial {first_trial} of a round's search is outside [0, {SEARCH_TRIALS_LIMIT})")
+    return int(round_index) * ROUND_BATCH + int(first_trial)
 
 
 def batch_seed(seed: int, first_trial: int) -> int:
@@ -120,7 +142,8 @@ class ModelObjective:
         with _inference_mode():
             L_task = np.concatenate([
                 predict_task_loss(self.model, *(a[part] for a in inputs), n_samples=self.n_samples,
-                                  generator=generator, from_step=self.skill.task_from_step)
+                                  generator=generator, from_step=self.skill.task_from_step,
+                                  objective=self.skill.objective)
                 for part in self.calls(len(proposals))])
         t2 = time.perf_counter()
         stiffness = inputs[3]

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import compliance_loss, task_loss
+from dcm.control import compliance_loss
 
 DEMO_TOLERANCE_M = 0.005  # x_demo of a log without a demo spec may differ from the run's by this much
 PHASE_TOLERANCE = 0.02  # relative spread of K allowed within a phase (resampling, rounding in the log)
@@ -70,7 +70,7 @@ def recover_phases(stiffness: np.ndarray, boundaries: np.ndarray, where: str) ->
 
 
 def _differences(expected: dict[str, Any], found: dict[str, Any], prefix: str) -> str:
-    from dcm.cli import config_diff
+    from dcm.configs import config_diff
 
     return "; ".join(f"{prefix}{line}" for line in config_diff(expected, found)[:3])
 
@@ -123,8 +123,8 @@ def load_observations(path: str | Path, run: dict[str, Any], skill: Any, space: 
                                       "stiffness.max_Npm)")
         k = np.clip(k, space.min_Npm, space.max_Npm)
         failed = bool(meta.get("failed", False))
-        force = np.asarray(data.arrays["F_obs"][i], np.float64)
-        observed_task = np.nan if failed else float(task_loss(force, skill.force_demo, skill.task_from_step))
+        force, pose = (np.asarray(data.arrays[key][i], np.float64) for key in ("F_obs", "x_obs"))
+        observed_task = np.nan if failed else skill.task_loss(force, pose)
         phases.append(k)
         objectives.append([observed_task, float(compliance_loss(skill.schedules(k[None]))[0])])
     return Observations(path, file_sha256(path), list(data.names), np.stack(phases), np.asarray(objectives))

@@ -73,7 +73,7 @@ def fingerprint_differences(old: Mapping[str, Any], new: Mapping[str, Any], old_
     """``key: old -> new`` for every setting that differs between two fingerprints (flattened keys).
 
     A differing ``predictor_sha256`` is shown with the files it was computed from (``notes["predictor"]``)."""
-    from dcm.cli import config_diff
+    from dcm.configs import config_diff
 
     lines = config_diff(old, new)
     old_notes, new_notes = old_notes or {}, new_notes or {}
@@ -127,12 +127,16 @@ def _tell(search: StiffnessSearch, objectives: np.ndarray) -> None:
 
 @dataclass
 class LoopTimes:
-    """Wall time of one :func:`optimize` call, split by where it went [s]."""
+    """What one :func:`optimize` call spent: wall time by where it went [s], and how many of its log's trials it
+    replayed from an earlier run's log (at no evaluation cost) and how many it evaluated, so a resumed run's
+    time is read as the time of the trials it computed, not of all of them."""
 
     ask: float = 0.0  # search.ask (the optimiser proposing)
     tell: float = 0.0  # search.tell (the optimiser updating)
     evaluate: float = 0.0  # the evaluator (model prediction with its input preparation, or rollouts)
     total: float = 0.0  # everything, including replay, logging and saving
+    replayed: int = 0  # trials taken from the log on disk, asked again but not evaluated
+    computed: int = 0  # trials evaluated by this call
 
     @property
     def optimiser(self) -> float:
@@ -185,6 +189,7 @@ def optimize(
             _tell(search, outcome)
             log.phase_stiffness.append(proposal)
             log.objectives.append(outcome)
+    times.replayed = len(previous)
     with tqdm(total=n_trials, initial=len(log), desc=desc, unit="trial", dynamic_ncols=True,
               disable=not progress) as bar:
         while len(log) < n_trials:
@@ -200,6 +205,7 @@ def optimize(
                 log.objectives.append(outcome)
             t3 = time.perf_counter()
             times.ask, times.evaluate, times.tell = times.ask + t1 - t0, times.evaluate + t2 - t1, times.tell + t3 - t2
+            times.computed += count
             if log_path is not None:
                 log.save(log_path)
             bar.update(count)

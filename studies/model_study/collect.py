@@ -18,7 +18,7 @@ from typing import Any
 
 import yaml
 
-from dcm.cli import flatten
+from dcm.configs import flatten
 from dcm.models.references import STIFFNESS_RIDGE
 from studies.model_study.matched_ridge import USAGE_RATE, matched_ridge_runs
 from studies.model_study.model_table import COLUMNS, cached_eval

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from dcm.cli import load_json
+from dcm.configs import load_json
 from dcm.data.datamodule import usage_index
 from dcm.models.references import STIFFNESS_RIDGE, StiffnessRegression
 from studies.model_study.runs import Run

@@ -82,7 +82,8 @@ def run_case(ckpt: str, demo: str, seed: int, out: Path, args: argparse.Namespac
     from dcm.tuning.checks import check_config, to_container
     from dcm.tuning.objectives import SimulatorObjective
     from dcm.tuning.optimize import optimize
-    from dcm.tuning.run import record_skill, tune
+    from dcm.tuning.run import tune
+    from dcm.tuning.setup import record_skill
     from studies.tuning_study.study_controls import prior_levels
 
     started = time.perf_counter()

@@ -42,11 +42,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     import torch
     from scipy.stats import pearsonr, spearmanr
 
-    from dcm.cli import resolve_device
+    from dcm.devices import resolve_device
     from dcm.tuning.checks import check_config
     from dcm.tuning.objectives import ModelObjective
     from dcm.tuning.optimize import TrialLog
-    from dcm.tuning.run import load_predictor, record_skill
+    from dcm.tuning.predictor import load_predictor
+    from dcm.tuning.setup import record_skill
     from studies.tuning_speed.compare_defaults import tune_config
 
     torch.set_num_threads(args.threads)

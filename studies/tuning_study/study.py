@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from dcm.tuning.pareto import hypervolume
-from dcm.tuning.run import ROBOT_LOG
+from dcm.tuning.setup import ROBOT_LOG
 from studies.tuning_study.study_config import (
     Tuner,
     check_resume,

@@ -186,7 +186,7 @@ def check_resume(cfg: Any, out_dir: Path) -> None:
     study that stopped on a bad setting restarts in place once it is fixed; unfinished runs' trial logs are
     still guarded by tune's own fingerprints.
     """
-    from dcm.cli import config_diff
+    from dcm.configs import config_diff
 
     path = out_dir / STUDY_SETTINGS
     settings = study_settings(cfg)

@@ -58,7 +58,7 @@ class SkillSetup:
 def setup_skill(tune_cfg: Any) -> SkillSetup:
     """Record the demo of ``tune_cfg`` in its simulator and build its skill (the same steps as ``tune``)."""
     from dcm.tuning.checks import check_config
-    from dcm.tuning.run import record_skill
+    from dcm.tuning.setup import record_skill
 
     checked = check_config(tune_cfg)
     simulator, demo, skill = record_skill(tune_cfg, checked)
@@ -94,7 +94,7 @@ def prior_levels(min_Npm: float, max_Npm: float, n_levels: int) -> np.ndarray:
 
 def run_prior(setup: SkillSetup, n_levels: int, out_dir: Path, rollouts: int = 1) -> dict[str, Any]:
     """Validate the prior's schedules in the simulator; writes ``results.json`` to ``out_dir`` (a finished run)."""
-    from dcm.tuning.run import solution_record
+    from dcm.tuning.pareto import solution_record
 
     levels = prior_levels(setup.space.min_Npm, setup.space.max_Npm, n_levels)
     schedules = np.stack([np.full((setup.space.n_phases, 3), level) for level in levels])
@@ -122,7 +122,8 @@ def run_robot_based_picks(setup: SkillSetup, params: np.ndarray, objectives: np.
     ``tuned``: the ``robot_based`` entry of the tune run that ran the search; when it validated these very
     picks over as many rollouts (its whole search, N = all trials), its numbers are taken instead of re-run.
     """
-    from dcm.tuning.run import pick_spread, solution_record, validate_front
+    from dcm.tuning.pareto import pick_spread, solution_record
+    from dcm.tuning.run import validate_front
 
     picks = pick_spread(objectives, n_validate)
     reused = tuned is not None and tuned.get("validation_rollouts") == rollouts and "solutions" in tuned and \

@@ -44,7 +44,7 @@ SHUFFLE_SEED = 0
 def front_hv(predicted_task: np.ndarray, objectives: np.ndarray, reference: np.ndarray, n_validate: int) -> float:
     """I_H of the simulated objectives of the ``n_validate`` trials a tuner would validate from the predicted
     front ÷ I_H of the simulated front of all trials (NaN when no trial beats the reference point)."""
-    from dcm.tuning.run import pick_spread
+    from dcm.tuning.pareto import pick_spread
 
     objectives = np.asarray(objectives, dtype=np.float64)
     best = hypervolume(objectives[pareto_mask(objectives)], reference)
@@ -93,7 +93,7 @@ def study_trials(study: Path) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """The distinct finite robot-based trials of a study: (N, P, 3) N/m, (N, 2) simulated objectives, and the
     tuning seeds they came from."""
     from dcm.tuning.optimize import TrialLog
-    from dcm.tuning.run import ROBOT_LOG
+    from dcm.tuning.setup import ROBOT_LOG
 
     logs = sorted((study / "runs" / "dcm").glob(f"seed_*/{ROBOT_LOG}"))
     if not logs:
@@ -129,9 +129,9 @@ def predict_trials(study: Path, predictors: Mapping[str, str], params: np.ndarra
                    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Each predictor's L_task on the trials, built as the study's robot-free runs of its kind build it
     (tuning seed 0's sample noise), and the study's skill settings (reference point, n_validate)."""
-    from dcm.cli import resolve_device
+    from dcm.devices import resolve_device
     from dcm.tuning.objectives import ModelObjective
-    from dcm.tuning.run import load_predictor
+    from dcm.tuning.predictor import load_predictor
     from studies.tuning_study.study_config import Tuner, tune_config
     from studies.tuning_study.study_controls import setup_skill
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from dcm.cli import config_diff
+from dcm.configs import config_diff
 from dcm.training.train import with_added_option_defaults
 from studies.model_study.__main__ import main as study_main
 from studies.model_study.stats import welch_test
