@@ -1,6 +1,7 @@
 """Simulator throughput: control steps/s of each embodiment beside raw physics and robosuite's stock Panda.
 
     MUJOCO_GL=egl python bench/sim_throughput.py [--rollouts 8] [--repeats 3] [--robosuite-steps 150] [--variants]
+                                                 [--frames]
 
 For each embodiment (``tool``, ``panda``) it records a spiral demo on the default bowl and times
 ``Simulator.rollout`` (control steps/s at 20 Hz, 25 physics substeps of 2 ms). Beside it, the raw ``mj_step``
@@ -9,7 +10,12 @@ rate of the *same* model: every control-period state of a rollout is restored an
 mj_steps/s / substeps. Then robosuite's stock ``Wipe`` env (Panda + OSC, control_freq=20) is stepped with zero
 and with random actions in the same process.
 
-Targets: ``tool`` >= 50% of its raw mj_step-bound control rate; ``panda`` >= 5x robosuite's OSC env.
+With ``--frames`` each embodiment also rolls out the same schedules (soft along one axis) in the world frame and
+in the surface frame (``stiffness.frame=surface``: a frame that turns along the demo, the full matrix R diag Rᵀ),
+alternating within each repeat.
+
+Targets: ``tool`` >= 50% of its raw mj_step-bound control rate; ``panda`` >= 5x robosuite's OSC env; a
+surface-frame rollout <= 1.2x the cost of a world-frame one.
 Each figure is the median over ``--repeats`` repeats, measured in process CPU time (steadier when other jobs
 share the machine) and in wall-clock time; the ratios use matching clocks.
 """
@@ -100,6 +106,27 @@ def bench_embodiment(name: str, rollouts: int, repeats: int) -> dict[str, float]
     }
 
 
+def bench_frames(name: str, rollouts: int, repeats: int) -> dict[str, float]:
+    """Control steps/s (CPU time) of world- and surface-frame rollouts of the same diagonals, and their cost ratio."""
+    from dcm.control import StiffnessSchedule
+
+    sim = Simulator(embodiment=name, bowl=BowlSpec())
+    demo = sim.record_demo(DemoSpec(family="spiral", bowl=BowlSpec()))
+    diagonals = [sim.constant_stiffness(demo, [k, k, k / 3.0]) for k in np.linspace(450.0, 1500.0, rollouts)]
+    frames = {"world": diagonals,
+              "surface": [StiffnessSchedule.for_demo(k, "surface", demo.x_demo, demo.force_demo) for k in diagonals]}
+    cpu: dict[str, list[float]] = {frame: [] for frame in frames}
+    for _ in range(repeats):
+        for frame, schedules in frames.items():
+            clock = Clock()
+            with clock:
+                if any(sim.rollout(demo, k).failed for k in schedules):
+                    raise RuntimeError(f"{name}: a {frame}-frame benchmark rollout failed")
+            cpu[frame].append(rollouts * demo.horizon / clock.cpu)
+    world, surface = statistics.median(cpu["world"]), statistics.median(cpu["surface"])
+    return {"world": world, "surface": surface, "cost_ratio": world / surface}
+
+
 def bench_panda_variants(repeats: int) -> list[tuple[str, float, float]]:
     """The panda's control-law variants: speed and force agreement with the per-physics-step Python controller.
 
@@ -183,6 +210,7 @@ def main() -> None:
     parser.add_argument("--robosuite-steps", type=int, default=150, help="env steps per robosuite repeat")
     parser.add_argument("--skip-robosuite", action="store_true")
     parser.add_argument("--variants", action="store_true", help="also time the panda's control-law variants")
+    parser.add_argument("--frames", action="store_true", help="also time surface- against world-frame rollouts")
     args = parser.parse_args()
 
     t_start = time.perf_counter()
@@ -219,6 +247,13 @@ def main() -> None:
         print(f"{'variant':50s} {'cpu steps/s':>11s} {'max force RMSE vs ref [N]':>26s}")
         for label, rate, rmse in bench_panda_variants(min(args.repeats, 2)):
             print(f"{label:50s} {rate:11.0f} {rmse:26.3f}")
+    if args.frames:
+        print("\nstiffness frames (the same diagonals; control steps/s by CPU time)")
+        for name in results:
+            r = bench_frames(name, args.rollouts, args.repeats)
+            print(f"{name}: world {r['world']:.0f}, surface {r['surface']:.0f}: a surface-frame rollout costs "
+                  f"{r['cost_ratio']:.2f}x a world-frame one (target <= 1.2x): "
+                  f"{'PASS' if r['cost_ratio'] <= 1.2 else 'MISS'}")
     print(f"\ntotal benchmark time {time.perf_counter() - t_start:.0f} s")
 
 

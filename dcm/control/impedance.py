@@ -38,6 +38,7 @@ def attractor_from_demo(
     dt: float,
     inertia: float | np.ndarray = 0.0,
     mass: float | np.ndarray = 1.0,
+    axes: np.ndarray | None = None,
 ) -> np.ndarray:
     """Attractor that makes the impedance law reproduce the demo: x + K^-1 (D xdot + Λ xddot - F).
 
@@ -48,6 +49,10 @@ def attractor_from_demo(
     change produces a force spike. Velocities and accelerations come from central finite differences.
     ``stiffness`` may be a batch (B, H, 6) of schedules for the one demo: the demo's derivatives are then
     computed once, and each schedule's attractor is the one a call of its own returns.
+
+    With stiffness ``axes`` (..., H, 3, 3) (:class:`dcm.control.StiffnessSchedule`), ``stiffness`` holds the
+    diagonal along them and ``mass`` the damping's mass along them (:func:`dcm.control.schedule.axis_mass`):
+    the translational K and D are then ``R diag Rᵀ`` and K^-1 is ``R diag(1/k) Rᵀ``.
     """
     x_demo = np.asarray(x_demo, dtype=np.float64)
     force_demo = np.asarray(force_demo, dtype=np.float64)
@@ -64,7 +69,16 @@ def attractor_from_demo(
     velocity = np.gradient(x_demo, dt, axis=0)
     acceleration = np.gradient(velocity, dt, axis=0)
     damping = damping_from_stiffness(stiffness, mass)
-    return x_demo + (damping * velocity + np.asarray(inertia) * acceleration - force_demo) / stiffness
+    if axes is None:
+        return x_demo + (damping * velocity + np.asarray(inertia) * acceleration - force_demo) / stiffness
+    axes = np.asarray(axes, dtype=np.float64)
+    inertial = np.broadcast_to(np.asarray(inertia, dtype=np.float64), (6,)) * acceleration - force_demo
+    # In the frame's axes each direction is a diagonal law again: k u = d (Rᵀ xdot) + Rᵀ (Λ xddot - F).
+    along = lambda v: np.einsum("...hji,...hj->...hi", axes, v)  # noqa: E731  Rᵀ v
+    u = (damping[..., :3] * along(velocity[:, :3]) + along(inertial[:, :3])) / stiffness[..., :3]
+    offset = np.concatenate([np.einsum("...hij,...hj->...hi", axes, u),
+                             (damping[..., 3:] * velocity[:, 3:] + inertial[:, 3:]) / stiffness[..., 3:]], axis=-1)
+    return x_demo + offset
 
 
 class StiffnessOutOfRange(ValueError):

@@ -1,6 +1,14 @@
-"""Stiffness schedules: split a demo into phases and hold one stiffness per phase."""
+"""Stiffness schedules: split a demo into phases, hold one stiffness per phase, and the frame it acts in.
+
+:class:`StiffnessSchedule` is the one representation of a schedule the simulator, the attractor, the search,
+the datasets and the schedule files share: a diagonal (H, 6) in the axes of a frame, ``world`` (the bowl's
+axes, the paper's) or ``surface`` (normal and tangents along the demo).
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -66,3 +74,169 @@ def phase_boundaries(method: str, n_phases: int, force_demo: np.ndarray) -> np.n
     if method == "changepoint":
         return changepoint_phases(force_demo[:, :3], n_phases)
     raise ValueError(f"phase method {method!r} is unknown; expected 'equal_time' or 'changepoint'")
+
+
+# -- the stiffness representation ---------------------------------------------------------------------------------
+
+FRAMES = ("world", "surface")
+
+
+class StiffnessFrameError(ValueError):
+    """A stiffness frame that is unknown or cannot be built for a demo."""
+
+
+def check_frame(frame: str, key: str = "stiffness.frame") -> str:
+    if frame not in FRAMES:
+        raise StiffnessFrameError(f"{key} = {frame!r} is unknown; expected one of {', '.join(FRAMES)}")
+    return frame
+
+
+def surface_axes(x_demo: np.ndarray, force_demo: np.ndarray, name: str = "the demo") -> np.ndarray:
+    """Stiffness axes (H, 3, 3) that follow the surface along a demo: columns t1, t2, n in bowl-frame coordinates.
+
+    The normal n is the one the wipe objective uses (:func:`dcm.control.objectives.surface_normals`): from the
+    demo's own pose and contact force, which a user's robot logs, so no model of the surface is needed. t1 is
+    bowl x projected into the tangent plane and t2 = n × t1; with one tangential stiffness their choice does not
+    matter. A demo that never presses has no normal to follow: refused, naming ``name``.
+    """
+    from dcm.control.objectives import NORMAL_FROM_FORCE_MIN_N, surface_normals
+
+    force = np.asarray(force_demo, dtype=np.float64)
+    if np.linalg.norm(force[..., :3], axis=-1).max(initial=0.0) < NORMAL_FROM_FORCE_MIN_N:
+        raise StiffnessFrameError(
+            f"stiffness.frame = 'surface' follows the surface normal, but {name} never presses more than "
+            f"{NORMAL_FROM_FORCE_MIN_N:g} N, so it has none; use stiffness.frame=world")
+    return axes_from_normals(surface_normals(x_demo, force))
+
+
+def axes_from_normals(normal: np.ndarray) -> np.ndarray:
+    """Stiffness axes (..., H, 3, 3), columns t1, t2, n, of unit normals (..., H, 3): t1 is bowl x projected
+    into the tangent plane, t2 = n × t1."""
+    t1 = np.zeros_like(normal)
+    t1[..., 0] = 1.0
+    t1 = t1 - normal[..., :1] * normal
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    return np.stack([t1, np.cross(normal, t1), normal], axis=-1)
+
+
+def frame_diagonal(phase_values: np.ndarray, frame: str) -> np.ndarray:
+    """The per-phase diagonal (..., P, 3) in the frame's axes of a search's per-phase values: world (Kx, Ky, Kz)
+    as they are, surface (K_tangent, K_normal) as (K_t, K_t, K_n)."""
+    values = np.asarray(phase_values, dtype=np.float64)
+    if check_frame(frame) == "world":
+        return values
+    return values[..., [0, 0, 1]]
+
+
+@dataclass(frozen=True)
+class StiffnessSchedule:
+    """A stiffness schedule: its diagonal (H, 6) in the axes of its frame, and those axes.
+
+    ``diagonal`` holds the translational stiffness along the frame's three axes [N/m] and the rotational
+    stiffness about bowl axes [N·m/rad]. ``axes`` (H, 3, 3) holds the frame's axes as columns in bowl-frame
+    coordinates; ``None`` is the world frame (the bowl's axes, the paper's convention), whose every path stays
+    the diagonal arithmetic it always was. The translational stiffness the controller applies is
+    ``R diag(k) Rᵀ`` (:meth:`translational_matrix`), which a franka_ros controller stores as it is and
+    libfranka takes as a stiffness frame R with the diagonal k.
+    """
+
+    diagonal: np.ndarray
+    axes: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        diagonal = np.asarray(self.diagonal, dtype=np.float64)
+        if diagonal.ndim != 2 or diagonal.shape[1] != 6:
+            raise ValueError(f"a stiffness schedule's diagonal must have shape (H, 6), got {diagonal.shape}")
+        object.__setattr__(self, "diagonal", diagonal)
+        if self.axes is not None:
+            axes = np.asarray(self.axes, dtype=np.float64)
+            if axes.shape != (diagonal.shape[0], 3, 3):
+                raise ValueError(f"stiffness axes must have shape ({diagonal.shape[0]}, 3, 3), got {axes.shape}")
+            object.__setattr__(self, "axes", axes)
+
+    @classmethod
+    def for_demo(cls, diagonal: np.ndarray, frame: str, x_demo: np.ndarray, force_demo: np.ndarray,
+                 name: str = "the demo") -> StiffnessSchedule:
+        """The schedule of ``diagonal`` (H, 6) in ``frame`` along a demo (``world`` keeps no axes)."""
+        if check_frame(frame) == "world":
+            return cls(diagonal)
+        return cls(diagonal, surface_axes(x_demo, force_demo, name))
+
+    @classmethod
+    def from_matrix(cls, translational: np.ndarray, rotational: np.ndarray, limits: Any = None,
+                    where: str = "stiffness") -> StiffnessSchedule:
+        """The schedule of full translational matrices (H, 3, 3) [N/m] and rotational diagonals (H, 3), as a
+        franka_ros controller's 6×6 stiffness holds them. Refuses, naming ``where`` and the step, a matrix that
+        is not symmetric or whose eigenvalues leave ``limits`` (:class:`dcm.control.StiffnessLimits`)."""
+        from dcm.control.impedance import StiffnessLimits, StiffnessOutOfRange
+
+        matrix = np.asarray(translational, dtype=np.float64)
+        rotational = np.asarray(rotational, dtype=np.float64)
+        if matrix.ndim != 3 or matrix.shape[1:] != (3, 3) or rotational.shape != (matrix.shape[0], 3):
+            raise ValueError(f"{where}: need translational (H, 3, 3) and rotational (H, 3), got {matrix.shape} "
+                             f"and {rotational.shape}")
+        asymmetry = np.abs(matrix - np.swapaxes(matrix, -1, -2)).max(axis=(-1, -2))
+        scale = np.abs(matrix).max(axis=(-1, -2))
+        if not np.all(np.isfinite(matrix)) or np.any(asymmetry > 1e-6 * np.maximum(scale, 1.0)):
+            t = int(np.argmax(~np.isfinite(matrix).all(axis=(-1, -2)) | (asymmetry > 1e-6 * np.maximum(scale, 1.0))))
+            raise StiffnessOutOfRange(f"{where}[t={t}]: the translational stiffness matrix is not symmetric")
+        values, vectors = np.linalg.eigh(0.5 * (matrix + np.swapaxes(matrix, -1, -2)))
+        vectors[..., 2] *= np.sign(np.linalg.det(vectors))[..., None]  # a rotation, not a reflection
+        schedule = cls(np.concatenate([values, rotational], axis=-1), vectors)
+        (limits or StiffnessLimits()).check(schedule.diagonal, where=f"{where} eigenvalues")
+        return schedule
+
+    @property
+    def horizon(self) -> int:
+        return self.diagonal.shape[0]
+
+    @property
+    def frame(self) -> str:
+        return "world" if self.axes is None else "surface"
+
+    def translational_matrix(self) -> np.ndarray:
+        """(H, 3, 3) ``R diag(k) Rᵀ`` in bowl-frame coordinates [N/m]."""
+        k = self.diagonal[:, :3]
+        if self.axes is None:
+            return k[:, :, None] * np.eye(3)
+        return np.einsum("hij,hj,hkj->hik", self.axes, k, self.axes)
+
+    def axis_mass(self, mass: np.ndarray) -> np.ndarray:
+        """The damping's mass along this schedule's axes (:func:`axis_mass`)."""
+        return axis_mass(mass, self.axes)
+
+    def filtered(self, dt: float, tau_s: float = 0.2, max_rate: float | None = None) -> StiffnessSchedule:
+        """The schedule the controller applies (:func:`filter_in_frame`)."""
+        return StiffnessSchedule(*filter_in_frame(self.diagonal, self.axes, dt, tau_s, max_rate))
+
+
+def axis_mass(mass: np.ndarray, axes: np.ndarray | None) -> np.ndarray:
+    """The per-axis mass along stiffness ``axes`` (..., H, 3, 3) of a per-bowl-axis mass (6,): rᵢᵀ M rᵢ for the
+    translational axes, so that critical damping ``2 sqrt(m k)`` stays critical along every axis of the frame
+    (with an isotropic mass, as both embodiments have, D = 2 sqrt(m K) is the matrix square root exactly)."""
+    mass = np.asarray(mass, dtype=np.float64)
+    if axes is None:
+        return mass
+    translational = np.einsum("...ji,j->...i", axes ** 2, mass[:3])
+    return np.concatenate([translational, np.broadcast_to(mass[3:], (*translational.shape[:-1], 3))], axis=-1)
+
+
+def filter_in_frame(diagonal: np.ndarray, axes: np.ndarray | None, dt: float, tau_s: float = 0.2,
+                    max_rate: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The applied (diagonal, axes) of a commanded schedule (..., H, 6) in ``axes`` (H, 3, 3), or None (world).
+
+    A real controller filters the stiffness it is sent, and for a frame that turns along the path that is the
+    matrix ``R diag(k) Rᵀ``: it is low-pass filtered entry by entry (a mix of positive definite matrices stays
+    one) and split back into eigenvalues and axes. The world frame filters its diagonal, as it always did.
+    """
+    from dcm.control.impedance import filter_schedule
+
+    diagonal = np.asarray(diagonal, dtype=np.float64)
+    if axes is None:
+        return filter_schedule(diagonal, dt, tau_s=tau_s, max_rate=max_rate), None
+    matrix = np.einsum("...hij,...hj,...hkj->...hik", axes, diagonal[..., :3], axes)
+    flat = np.concatenate([matrix.reshape(*matrix.shape[:-2], 9), diagonal[..., 3:]], axis=-1)
+    applied = filter_schedule(flat, dt, tau_s=tau_s, max_rate=max_rate)
+    values, vectors = np.linalg.eigh(applied[..., :9].reshape(matrix.shape))
+    vectors[..., 2] *= np.sign(np.linalg.det(vectors))[..., None]  # a rotation, not a reflection
+    return np.concatenate([values, applied[..., 9:]], axis=-1), vectors

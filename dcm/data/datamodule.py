@@ -250,6 +250,13 @@ class DCMDataModule(L.LightningDataModule):
             self.split("train")
         return float(self.attrs["control_hz"])
 
+    @property
+    def stiffness_frame(self) -> str:
+        """The frame the file's stiffness channels are diagonals in (files older than the frame: world)."""
+        if not self.attrs:
+            self.split("train")
+        return str(self.attrs.get("stiffness_frame", "world"))
+
     def train_arrays(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The used training trajectories' raw conditions (N,H,24) and targets (N,H,C): what a model fits
         its normalisers on."""

@@ -154,6 +154,7 @@ def generate(cfg: Any) -> Path:
         "dataset": str(cfg.dataset.name),
         "search": settings["search"]["name"],
         "objective": TaskObjective.from_dict(settings.get("objective")).to_dict(),
+        "stiffness_frame": str(settings["stiffness"].get("frame", "world")),
         "seed": int(cfg.seed),
         "config": config,
         "plan_fingerprint": plan,

@@ -52,6 +52,8 @@ def build_settings(cfg: Any) -> dict[str, Any]:
         raise GenerationError(str(err)) from None
     if objective.name != "paper":  # only then: every dataset of the paper's objective keeps its fingerprint
         settings["objective"] = objective.to_dict()
+    if settings["stiffness"].get("frame", "world") == "world":  # likewise for the world frame's datasets
+        settings["stiffness"].pop("frame", None)
     return settings
 
 

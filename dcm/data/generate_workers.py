@@ -114,7 +114,7 @@ class DemoRunner:
 
     def run(self, job: DemoJob, job_fingerprint: str, on_trial: Callable[[], None] = lambda: None) -> Path:
         """Record the demo, run its stiffness search, write its part file; returns the part path."""
-        from dcm.control.schedule import phase_boundaries, schedule_from_phases
+        from dcm.control.schedule import StiffnessSchedule, phase_boundaries, schedule_from_phases
         from dcm.sim.demos import DemoSpec
 
         stiffness_cfg = self.settings["stiffness"]
@@ -130,14 +130,20 @@ class DemoRunner:
             raise GenerationError(f"stiffness.phases / n_phases: {err}") from err
         space = space_from_settings(stiffness_cfg, GenerationError)
         search = make_search(self.settings["search"]["name"], space, job.seed, **self.settings["search"]["options"])
+        try:
+            frame = StiffnessSchedule.for_demo(np.zeros((horizon, 6)), space.frame, demo.x_demo, demo.force_demo,
+                                               f"demo {job.index} ({spec.name or spec.family})").axes
+        except ValueError as err:
+            raise GenerationError(str(err)) from None
 
         records: dict[str, list[Any]] = {k: [] for k in ("x_attr", "K", "x_obs", "F_obs", "contact", "L_task",
                                                           "L_comp", "failed", "failure_reason",
                                                           "phase_stiffness_Npm")}
         for _ in range(job.n_trials):
             phase_stiffness = search.ask()
-            schedule = schedule_from_phases(phase_stiffness, boundaries, rot_stiffness=stiffness_cfg["rot_Nmprad"])
-            trial = sim.rollout(demo, schedule)
+            schedule = schedule_from_phases(space.diagonal(phase_stiffness), boundaries,
+                                            rot_stiffness=stiffness_cfg["rot_Nmprad"])
+            trial = sim.rollout(demo, StiffnessSchedule(schedule, frame))
             failed = bool(trial.failed)
             l_task = objective.trial_task_loss(trial, demo.x_demo, demo.force_demo)
             search.tell(None if failed else (l_task, float(trial.L_comp)))

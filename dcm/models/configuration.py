@@ -55,9 +55,10 @@ class DataSpec:
     cond_channels: list[str] = field(default_factory=cond_channel_names)
     target_channels: list[str] = field(default_factory=target_channel_names)
     control_hz: float = 20.0
+    stiffness_frame: str = "world"  # the frame the stiffness channels are diagonals in (dcm.control.FRAMES)
 
     def check(self, cond_channels: list[str], target_channels: list[str], control_hz: float,
-              source: str = "dataset") -> None:
+              source: str = "dataset", stiffness_frame: str = "world") -> None:
         """Raise :class:`DatasetMismatchError` naming the first difference.
 
         ``target_channels`` may be the model's force channels alone where the model also predicts the pose: a
@@ -72,6 +73,10 @@ class DataSpec:
         if abs(float(control_hz) - float(self.control_hz)) > 1e-9:
             raise DatasetMismatchError(
                 f"{source}: control rate {control_hz} Hz, but the model was trained at {self.control_hz} Hz")
+        if stiffness_frame != self.stiffness_frame:
+            raise DatasetMismatchError(
+                f"{source}: stiffness in the {stiffness_frame} frame, but the model was trained on stiffness in the "
+                f"{self.stiffness_frame} frame (stiffness.frame={self.stiffness_frame})")
 
 
 TARGETS = ("absolute", "residual")

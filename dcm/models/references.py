@@ -116,9 +116,14 @@ class StiffnessRegression:
 
     @property
     def data_spec(self) -> Any:
+        from dcm.data.schema import target_channel_names
         from dcm.models.configuration import DataSpec
 
-        return DataSpec(control_hz=self.control_hz)
+        # A ridge predicts L_task alone; the targets a split needs to score it are the objective's (the pose too
+        # where it counts the path), so a wipe ridge is evaluated on the file it was fitted on.
+        targets = target_channel_names("force_and_pose" if self.objective.counts_path else "force")
+        return DataSpec(target_channels=targets, control_hz=self.control_hz,
+                        stiffness_frame=self.info.get("stiffness_frame", "world"))
 
     def check_phases(self, n_phases: int | None, source: str) -> None:
         """Refuse schedules of another phase count: fewer phases would be read as repeated values silently."""
@@ -215,7 +220,8 @@ class StiffnessRegression:
                                         for f in ("F_obs", "F_demo", "x_obs", "x_demo"))
         L = np.asarray(objective.task_loss(F_obs, F_demo, x_obs, x_demo, start))
         info = {"dataset": _dataset_identity(Path(path), loaded.attrs), "split": split, "group_key": GROUP_KEY,
-                "phase_method": _phase_method(loaded.attrs)}
+                "phase_method": _phase_method(loaded.attrs),
+                "stiffness_frame": str(loaded.attrs.get("stiffness_frame", "world"))}
         if task_from_s:  # only when set: a whole-trajectory fit records no start
             info["task_from_s"] = float(task_from_s)
         if index is not None:

@@ -1,8 +1,9 @@
 """Multi-objective stiffness search strategies, shared by dataset generation and tuning.
 
-Every strategy proposes per-phase translational stiffness (P, 3) in N/m through ask/tell and minimises
-(L_task, L_comp). Strategies are seeded: the same (seed, outcomes) give the same proposals, which is what
-makes a resumed or sharded run reproduce an uninterrupted one.
+Every strategy proposes per-phase translational stiffness (P, axes) in N/m, the axes of the space's frame
+(world: x, y, z; surface: tangent, normal), through ask/tell and minimises (L_task, L_comp). Strategies are
+seeded: the same (seed, outcomes) give the same proposals, which is what makes a resumed or sharded run
+reproduce an uninterrupted one.
 
 =========  ======================================  ============================================
 name       strategy                                when

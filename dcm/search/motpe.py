@@ -50,7 +50,7 @@ class MOTPESearch:
         return self.space.to_array(trial.params)
 
     def ask_batch(self, count: int) -> np.ndarray:
-        """``count`` proposals (count, P, 3) to be evaluated together; batched, from one TPE fit."""
+        """``count`` proposals (count, P, axes) to be evaluated together; batched, from one TPE fit."""
         if self.batched:
             self.study.sampler.plan(count)
         return np.stack([self.ask() for _ in range(count)])

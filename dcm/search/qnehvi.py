@@ -89,7 +89,7 @@ class BoTorchSearch:
 
     # --- ask/tell -----------------------------------------------------------------------------------------
     def ask(self) -> np.ndarray:
-        """The next proposal (P, 3) in N/m; a new batch of ``batch_size`` is planned when the queue is empty."""
+        """The next proposal (P, axes) in N/m; a new batch of ``batch_size`` is planned when the queue is empty."""
         self.check_budget(self.n_asked + 1)
         if not self._queue:
             self._queue.extend(self._plan())

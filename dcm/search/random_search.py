@@ -15,7 +15,7 @@ class RandomSearch:
         self.rng = np.random.default_rng(seed)
 
     def ask(self) -> np.ndarray:
-        shape = (self.space.n_phases, 3)
+        shape = (self.space.n_phases, len(self.space.axes))
         if self.space.log:
             low, high = np.log(self.space.min_Npm), np.log(self.space.max_Npm)
             return np.exp(self.rng.uniform(low, high, size=shape))

@@ -12,50 +12,67 @@ from typing import Any, Protocol
 
 import numpy as np
 
-AXES = ("x", "y", "z")
+# The searched stiffness per phase, by frame: the bowl's axes, or one tangential and one normal value.
+FRAME_AXES = {"world": ("x", "y", "z"), "surface": ("t", "n")}
+AXES = FRAME_AXES["world"]
 
 
 @dataclass(frozen=True)
 class SearchSpace:
-    """Box of per-phase translational stiffness: ``n_phases`` × 3 values in [min_Npm, max_Npm]."""
+    """Box of per-phase translational stiffness: ``n_phases`` × (3 bowl axes, or tangent and normal for the
+    ``surface`` frame) values in [min_Npm, max_Npm]."""
 
     n_phases: int = 3
     min_Npm: float = 100.0
     max_Npm: float = 1500.0
     log: bool = False  # sample log-uniformly (spreads trials over the soft end too)
+    frame: str = "world"  # dcm.control.FRAMES
 
     def __post_init__(self) -> None:
         if self.n_phases < 1:
             raise ValueError(f"search space n_phases={self.n_phases} must be >= 1")
         if not 0 < self.min_Npm < self.max_Npm:
             raise ValueError(f"stiffness bounds must satisfy 0 < min_Npm < max_Npm, got {self.min_Npm}, {self.max_Npm}")
+        if self.frame not in FRAME_AXES:
+            raise ValueError(f"stiffness.frame = {self.frame!r} is unknown; expected one of {', '.join(FRAME_AXES)}")
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        return FRAME_AXES[self.frame]
 
     @property
     def dim(self) -> int:
-        """Number of searched values (P × 3)."""
-        return self.n_phases * len(AXES)
+        """Number of searched values (P × axes)."""
+        return self.n_phases * len(self.axes)
 
     def param_names(self) -> list[str]:
-        return [f"K{axis}_phase{p}" for p in range(self.n_phases) for axis in AXES]
+        return [f"K{axis}_phase{p}" for p in range(self.n_phases) for axis in self.axes]
 
     def to_array(self, params: dict[str, float]) -> np.ndarray:
-        return np.array([params[name] for name in self.param_names()], dtype=np.float64).reshape(self.n_phases, 3)
+        return np.array([params[name] for name in self.param_names()],
+                        dtype=np.float64).reshape(self.n_phases, len(self.axes))
+
+    def diagonal(self, values: np.ndarray) -> np.ndarray:
+        """(..., P, axes) searched values -> (..., P, 3) diagonal along the frame's axes (surface: t, t, n)."""
+        from dcm.control import frame_diagonal
+
+        return frame_diagonal(values, self.frame)
 
     def to_unit(self, stiffness: np.ndarray) -> np.ndarray:
-        """(..., P, 3) N/m -> (..., P·3) in [0, 1] (in log space when ``log``), for model-based strategies."""
+        """(..., P, axes) N/m -> (..., P·axes) in [0, 1] (in log space when ``log``), for model-based strategies."""
         values = np.asarray(stiffness, dtype=np.float64).reshape(*np.shape(stiffness)[:-2], self.dim)
         low, high, values = self._scale(values)
         return (values - low) / (high - low)
 
     def from_unit(self, unit: np.ndarray) -> np.ndarray:
-        """(..., P·3) in [0, 1] -> (..., P, 3) N/m, clipped into the box."""
+        """(..., P·axes) in [0, 1] -> (..., P, axes) N/m, clipped into the box."""
         unit = np.clip(np.asarray(unit, dtype=np.float64), 0.0, 1.0)
         low, high, _ = self._scale(np.zeros(0))
         values = low + unit * (high - low)
         if self.log:
             values = np.exp(values)
         values = np.clip(values, self.min_Npm, self.max_Npm)  # exp/log round-off must not leave the box
-        return values.reshape(*unit.shape[:-1], self.n_phases, len(AXES))
+        return values.reshape(*unit.shape[:-1], self.n_phases, len(self.axes))
 
     def _scale(self, values: np.ndarray) -> tuple[float, float, np.ndarray]:
         if self.log:
@@ -89,11 +106,14 @@ def space_from_settings(stiffness: Mapping[str, Any], error: type[Exception] = V
         raise error(f"stiffness.damping = {stiffness['damping']!r}; expected one of {', '.join(DAMPING_MODES)}")
     if not isinstance(stiffness["log"], bool):
         raise error(f"stiffness.log = {stiffness['log']!r} must be true or false")
-    return SearchSpace(n_phases=n_phases, min_Npm=low, max_Npm=high, log=stiffness["log"])
+    frame = stiffness.get("frame", "world")  # absent from the settings of datasets older than the frame
+    if frame not in FRAME_AXES:
+        raise error(f"stiffness.frame = {frame!r} is unknown; expected one of {', '.join(FRAME_AXES)}")
+    return SearchSpace(n_phases=n_phases, min_Npm=low, max_Npm=high, log=stiffness["log"], frame=frame)
 
 
 class StiffnessSearch(Protocol):
-    """ask() proposes (P, 3) stiffness in N/m; tell() reports (L_task, L_comp), or None for a failed trial.
+    """ask() proposes (P, axes) stiffness in N/m; tell() reports (L_task, L_comp), or None for a failed trial.
 
     Asks may run ahead of tells (a batch is asked, evaluated together, then told in order); tell() always
     reports the oldest proposal not yet told.

@@ -63,7 +63,9 @@ class Embodiment(Protocol):
 
     apparent_mass: tuple[float, ...]  # (6,) per-axis mass critical damping uses [kg, kg·m²]
 
-    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None) -> StepResult:
+    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None,
+             axes: np.ndarray | None = None) -> StepResult:
         """Run one control period pulling towards ``attractor`` (6,) with stiffness ``K`` (6,) and damping
-        ``D`` (6,), default ``2 sqrt(K)``."""
+        ``D`` (6,), default ``2 sqrt(K)``, along bowl axes or, for the translation, along the columns of the
+        stiffness ``axes`` (3, 3)."""
         ...

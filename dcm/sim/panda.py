@@ -323,13 +323,18 @@ class PandaEmbodiment:
         self._bias[:, 1] = -k
         self._bias[:, 2] = -dmp
 
-    def set_attractor(self, attractor: np.ndarray) -> None:
-        """Move the two mocap attractor sites to ``attractor`` (bowl frame)."""
+    def set_attractor(self, attractor: np.ndarray, axes: np.ndarray | None = None) -> None:
+        """Move the two mocap attractor sites to ``attractor`` (bowl frame). The translational actuators act along
+        the position site's axes: bowl axes, or the columns of the stiffness ``axes`` (3, 3)."""
         attractor = self._check_pose(attractor, "attractor")
         pos = attractor[:3] + self.origin
         self.data.mocap_pos[self._mocap_pos] = pos
         self.data.mocap_pos[self._mocap_rot] = pos
-        self.data.mocap_quat[self._mocap_pos] = (1.0, 0.0, 0.0, 0.0)
+        if axes is None:
+            self.data.mocap_quat[self._mocap_pos] = (1.0, 0.0, 0.0, 0.0)
+        else:
+            mujoco.mju_mat2Quat(self.data.mocap_quat[self._mocap_pos],
+                                np.ascontiguousarray(axes, dtype=np.float64).ravel())
         self.data.mocap_quat[self._mocap_rot] = tool_quat(attractor[3:])
 
     def _slow_torques(self) -> None:
@@ -357,7 +362,7 @@ class PandaEmbodiment:
         self._held_slow = tau
         d.qfrc_applied[:7] = tau
 
-    def _python_impedance(self, stiffness: np.ndarray, damping: np.ndarray) -> None:
+    def _python_impedance(self, stiffness: np.ndarray, damping: np.ndarray, axes: np.ndarray | None = None) -> None:
         """Reference controller: tau = J^T (K e - D J qdot) evaluated in Python, clamped to the joint limits.
 
         Adds to ``qfrc_applied`` on top of the slow terms; used only to validate the in-engine actuators.
@@ -373,7 +378,13 @@ class PandaEmbodiment:
         mujoco.mju_negQuat(neg, site_quat)
         mujoco.mju_mulQuat(diff, d.mocap_quat[self._mocap_rot], neg)
         mujoco.mju_quat2Vel(err[3:], diff, 1.0)
-        wrench = stiffness * err - damping * (j @ d.qvel[:7])
+        velocity = j @ d.qvel[:7]
+        if axes is None:
+            wrench = stiffness * err - damping * velocity
+        else:  # R (k ∘ Rᵀ e - d ∘ Rᵀ v) for the translation
+            wrench = np.empty(6)
+            wrench[:3] = axes @ (stiffness[:3] * (axes.T @ err[:3]) - damping[:3] * (axes.T @ velocity[:3]))
+            wrench[3:] = stiffness[3:] * err[3:] - damping[3:] * velocity[3:]
         tau = np.clip(j.T @ wrench, -pa.TORQUE_LIMITS_NM, pa.TORQUE_LIMITS_NM)
         d.qfrc_applied[:7] = tau + self._held_slow
 
@@ -388,15 +399,16 @@ class PandaEmbodiment:
         mujoco.mj_forward(m, d)
         self._slow_torques()
 
-    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None) -> StepResult:
-        """One control period towards ``attractor`` with stiffness ``K`` and damping ``D`` (default ``2 sqrt(K)``);
-        wrench averaged over the substeps.
+    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None,
+             axes: np.ndarray | None = None) -> StepResult:
+        """One control period towards ``attractor`` with stiffness ``K`` and damping ``D`` (default ``2 sqrt(K)``)
+        along bowl axes, or along the columns of ``axes`` (3, 3); wrench averaged over the substeps.
 
         If MuJoCo reports a numerical instability during the period, pose/velocity/wrench come back as NaN so
         the caller's divergence check marks the trial failed.
         """
         m, d = self.model, self.data
-        self.set_attractor(attractor)
+        self.set_attractor(attractor, axes)
         self.set_stiffness(stiffness, damping)
         self._slow_torques()
         warnings_before = int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
@@ -424,7 +436,7 @@ class PandaEmbodiment:
                 if self.slow_terms == "substep":
                     self._slow_torques()
                 if self.controller == "python":
-                    self._python_impedance(stiffness, damping)
+                    self._python_impedance(stiffness, damping, axes)
                 elif scale is not None:
                     d.qfrc_applied[:7] = self._held_slow
                 if scale is not None:  # at the velocity this step starts from

@@ -31,13 +31,15 @@ from threadpoolctl import threadpool_limits
 
 from dcm.control import (
     StiffnessLimits,
+    StiffnessSchedule,
     attractor_from_demo,
     compliance_loss,
     damping_from_stiffness,
     damping_mass,
-    filter_schedule,
+    filter_in_frame,
     task_loss,
 )
+from dcm.control.schedule import axis_mass
 from dcm.sim.demos import Demo, DemoSpec
 from dcm.sim.domain import DomainSpec
 from dcm.sim.embodiment import PHYSICS_DT_S, Embodiment
@@ -97,6 +99,8 @@ class Trial:
     failed: bool = False
     failure_reason: str = ""
     stiffness_applied: np.ndarray | None = None  # after low-pass filtering, what the controller used
+    stiffness_axes: np.ndarray | None = None  # (H, 3, 3) the commanded schedule's frame (None: bowl axes)
+    stiffness_applied_axes: np.ndarray | None = None  # (H, 3, 3) the applied stiffness' eigenvectors (None: bowl)
     failed_step: int = -1
     bowl_offset_m: float = 0.0  # how far the bowl stood above where the demo had it (domain.bowl_offset_std_m)
     bowl_friction_factor: float = 1.0  # the bowl's friction in this rollout ÷ the nominal (domain.bowl_friction_std)
@@ -265,8 +269,10 @@ class Simulator:
         return Demo(spec=spec, dt=self.dt, x_demo=run.x_obs, force_demo=run.force_obs, start_pose=start,
                     contact=run.contact)
 
-    def rollout(self, demo: Demo, stiffness: np.ndarray, repeat: int = 0, common_draws: bool = False) -> Trial:
-        """Run the impedance controller with schedule ``stiffness`` (H, 6) on the attractor of ``demo``.
+    def rollout(self, demo: Demo, stiffness: np.ndarray | StiffnessSchedule, repeat: int = 0,
+                common_draws: bool = False) -> Trial:
+        """Run the impedance controller with schedule ``stiffness`` on the attractor of ``demo``: a
+        :class:`~dcm.control.StiffnessSchedule`, or its diagonal (H, 6) in bowl axes (the world frame).
 
         A rollout's random draws (sensor noise, per-rollout bowl spread) are seeded by the simulator's seed and
         its inputs, so the same schedule gives the same trial; ``repeat`` > 0 draws another, independent one
@@ -278,7 +284,9 @@ class Simulator:
         Raises ``StiffnessOutOfRange`` for values outside ``self.limits`` and ``SimulatorError`` for
         mismatched shapes or non-finite demo data; divergence gives a failed ``Trial`` instead.
         """
-        stiffness = np.asarray(stiffness, dtype=np.float64)
+        axes = stiffness.axes if isinstance(stiffness, StiffnessSchedule) else None
+        stiffness = np.asarray(stiffness.diagonal if isinstance(stiffness, StiffnessSchedule) else stiffness,
+                               dtype=np.float64)
         x_demo = np.asarray(demo.x_demo, dtype=np.float64)
         force_demo = np.asarray(demo.force_demo, dtype=np.float64)
         horizon = x_demo.shape[0]
@@ -294,18 +302,19 @@ class Simulator:
         if abs(demo.dt - self.dt) > 1e-9:
             raise SimulatorError(f"demo dt = {demo.dt} s does not match the simulator's control dt = {self.dt} s")
         self.limits.check(stiffness, where="stiffness")
-        applied = filter_schedule(stiffness, self.dt, tau_s=self.stiffness_tau_s)
-        x_attr = self._attractor(demo, applied)
+        applied, applied_axes = filter_in_frame(stiffness, axes, self.dt, tau_s=self.stiffness_tau_s)
+        x_attr = self._attractor(demo, applied, applied_axes)
         start = demo.start_pose if demo.start_pose is not None else demo.spec.start_pose(self.control_hz)
         emb = self.embodiment_for(demo.spec.bowl)
         # Keyed on what the caller chose (the demo's spec, the schedule), not on simulated floats: those differ in
         # their last bits between CPUs, and any hash of them would give every rollout another draw there.
-        key = b"common" if common_draws else stiffness.tobytes()
+        key = b"common" if common_draws else stiffness.tobytes() + (b"" if axes is None else b"surface")
         rng = self._rng("rollout", demo.spec.to_json(), key, *([repeat] if repeat else []))
         placement = self._bowl_draw(rng)
         bias = self._bias_draw(rng)
         with _bowl_replaced(emb, placement):
-            run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng, bias)
+            run = self._execute(emb, demo.spec.bowl, np.asarray(start, float), x_attr, applied, rng, bias,
+                                applied_axes)
         if run.failed:
             l_task = float("inf")
         else:
@@ -323,6 +332,8 @@ class Simulator:
             failed=run.failed,
             failure_reason=run.reason,
             stiffness_applied=applied,
+            stiffness_axes=axes,
+            stiffness_applied_axes=applied_axes,
             failed_step=run.failed_step,
             bowl_offset_m=placement.offset_m,
             bowl_friction_factor=placement.friction_factor,
@@ -348,13 +359,17 @@ class Simulator:
         std = np.asarray(self.domain.ft_bias_std)
         return rng.standard_normal(6) * std if std.any() else None
 
-    def attractor(self, demo: Demo, stiffness: np.ndarray) -> np.ndarray:
+    def attractor(self, demo: Demo, stiffness: np.ndarray, axes: np.ndarray | None = None) -> np.ndarray:
         """The attractor (H, 6) a rollout of the commanded ``stiffness`` (H, 6) uses: the paper's equation with
         the applied (filtered) K, the controller's damping and the embodiment's nominal Cartesian inertia.
+        ``stiffness`` is the diagonal along the stiffness ``axes`` (H, 3, 3), or along bowl axes (None).
         Robot-free tuning calls this to build model inputs, for a batch of schedules (B, H, 6) at once."""
-        return self._attractor(demo, filter_schedule(stiffness, self.dt, tau_s=self.stiffness_tau_s))
+        stiffness = np.asarray(stiffness, dtype=np.float64)
+        if axes is not None:
+            axes = np.broadcast_to(axes, (*stiffness.shape[:-1], 3, 3))
+        return self._attractor(demo, *filter_in_frame(stiffness, axes, self.dt, tau_s=self.stiffness_tau_s))
 
-    def _attractor(self, demo: Demo, applied: np.ndarray) -> np.ndarray:
+    def _attractor(self, demo: Demo, applied: np.ndarray, axes: np.ndarray | None = None) -> np.ndarray:
         inertia = float(getattr(self._cls, "attractor_inertia_kg", 0.0))
         return attractor_from_demo(
             np.asarray(demo.x_demo, dtype=np.float64),
@@ -362,7 +377,8 @@ class Simulator:
             np.asarray(applied, dtype=np.float64),
             self.dt,
             inertia=inertia,
-            mass=self.damping_mass,
+            mass=axis_mass(self.damping_mass, axes),
+            axes=axes,
         )
 
     def constant_stiffness(self, demo: Demo, translational_Npm: Any, rotational: float = 20.0) -> np.ndarray:
@@ -389,8 +405,10 @@ class Simulator:
         stiffness: np.ndarray,
         rng: np.random.Generator,
         bias: np.ndarray | None = None,
+        axes: np.ndarray | None = None,
     ) -> _Execution:
-        """Reset at ``start_pose`` and run the commands; applies latency and sensing; detects divergence."""
+        """Reset at ``start_pose`` and run the commands (``stiffness`` along ``axes`` (H, 3, 3), or bowl axes);
+        applies latency and sensing; detects divergence."""
         horizon = len(attractor)
         if not np.all(np.isfinite(attractor)):
             t, c = np.argwhere(~np.isfinite(attractor))[0]
@@ -407,10 +425,13 @@ class Simulator:
         warnings = [(emb.data.warning[w], mujoco.mjtWarning(w).name) for w in _BAD_STATE_WARNINGS]
         half_extent = bowl.half_extent_m
         failed, reason, failed_step = False, "", -1
-        damping = damping_from_stiffness(stiffness, self.damping_mass)
+        damping = damping_from_stiffness(stiffness, axis_mass(self.damping_mass, axes))
         for k in range(horizon):
             j = k - latency
-            if j >= 0:
+            if axes is not None:
+                result = emb.step(attractor[j], stiffness[j], damping[j], axes[j]) if j >= 0 else \
+                    emb.step(start_pose, stiffness[0], damping[0], axes[0])
+            elif j >= 0:
                 result = emb.step(attractor[j], stiffness[j], damping[j])
             else:  # the first command has not arrived yet: keep holding the start pose
                 result = emb.step(start_pose, stiffness[0], damping[0])

@@ -135,6 +135,29 @@ def build_tool_spec(bowl: BowlSpec, domain: DomainSpec, physics_dt: float = PHYS
         act.biasprm[:3] = [0.0, -500.0, -2.0 * np.sqrt(500.0)]
         act.forcelimited = True
         act.forcerange = [-ACTUATOR_FORCE_LIMIT_N, ACTUATOR_FORCE_LIMIT_N]
+    # A stiffness frame that turns (stiffness.frame=surface): three site actuators along the axes of a mocap
+    # attractor body, idle (zero gains) while the joint actuators above serve the world frame.
+    tcp = tool.add_site()
+    tcp.name = "tcp"
+    frame = spec.worldbody.add_body()
+    frame.name = "stiffness_frame"
+    frame.mocap = True
+    frame.add_site().name = "frame_attractor"
+    for axis in range(3):
+        act = spec.add_actuator()
+        act.name = f"imp_frame_{axis}"
+        act.target = "tcp"
+        act.refsite = "frame_attractor"
+        act.trntype = mujoco.mjtTrn.mjTRN_SITE
+        gear = [0.0] * 6
+        gear[axis] = 1.0
+        act.gear = gear
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.gainprm[0] = 0.0
+        act.biasprm[:3] = [0.0, 0.0, 0.0]
+        act.forcelimited = True
+        act.forcerange = [-ACTUATOR_FORCE_LIMIT_N, ACTUATOR_FORCE_LIMIT_N]
     return spec
 
 
@@ -187,21 +210,33 @@ class ToolEmbodiment:
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:3] = pose[:3]
         self.data.ctrl[:3] = pose[:3]
+        self.data.mocap_pos[0] = pose[:3]
         self.data.qfrc_applied[2] = self._gravity_comp_N
         mujoco.mj_forward(self.model, self.data)
 
-    def set_stiffness(self, stiffness: np.ndarray, damping: np.ndarray | None = None) -> None:
-        """Write K and D (default ``2 sqrt(K)``) of the translational axes into the actuators."""
+    def set_stiffness(self, stiffness: np.ndarray, damping: np.ndarray | None = None,
+                      axes: np.ndarray | None = None) -> None:
+        """Write K and D (default ``2 sqrt(K)``) of the translational axes into the actuators: the joint
+        actuators for bowl axes, or with ``axes`` (3, 3) the site actuators along those axes."""
         k = np.asarray(stiffness, dtype=np.float64)[:3]
-        self._gain[:, 0] = k
-        self._bias[:, 1] = -k
-        self._bias[:, 2] = -(damping_from_stiffness(k) if damping is None else np.asarray(damping, np.float64)[:3])
+        d = damping_from_stiffness(k) if damping is None else np.asarray(damping, np.float64)[:3]
+        active, idle = (slice(0, 3), slice(3, 6)) if axes is None else (slice(3, 6), slice(0, 3))
+        self._gain[active, 0] = k
+        self._bias[active, 1] = -k
+        self._bias[active, 2] = -d
+        self._gain[idle, 0] = self._bias[idle, 1] = self._bias[idle, 2] = 0.0
+        if axes is not None:
+            mujoco.mju_mat2Quat(self.data.mocap_quat[0], np.ascontiguousarray(axes, dtype=np.float64).ravel())
 
-    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None) -> StepResult:
-        """One control period: impedance towards ``attractor`` with ``stiffness`` and ``damping``; averaged wrench."""
+    def step(self, attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None,
+             axes: np.ndarray | None = None) -> StepResult:
+        """One control period: impedance towards ``attractor`` with ``stiffness`` and ``damping`` along bowl axes,
+        or along the columns of ``axes`` (3, 3); averaged wrench."""
         model, data = self.model, self.data
-        self.set_stiffness(stiffness, damping)
+        self.set_stiffness(stiffness, damping, axes)
         data.ctrl[:3] = np.asarray(attractor, dtype=np.float64)[:3]
+        if axes is not None:
+            data.mocap_pos[0] = data.ctrl[:3]
         velocity_start = data.qvel[:3].copy()
         acc = self._sensor_acc
         acc[:] = 0.0

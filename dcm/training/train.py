@@ -179,7 +179,8 @@ def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
     if cfg.init_from:
         ckpt = init_checkpoint(cfg)
         init = cls.load_from_checkpoint(ckpt)
-        init.data_spec.check(dm.cond_channels, dm.target_channels, dm.control_hz, source=str(dm.path))
+        init.data_spec.check(dm.cond_channels, dm.target_channels, dm.control_hz, source=str(dm.path),
+                             stiffness_frame=dm.stiffness_frame)
         hparams = dict(init.hparams)
         hparams.update({k: model_cfg[k] for k in FINETUNE_FIELDS if k in model_cfg})
         model = cls(**hparams)
@@ -188,7 +189,10 @@ def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
             model.net.load_state_dict(model.ema_net.state_dict())  # continue from the averaged weights
         log.info("initialised from %s (normaliser kept from pre-training)", ckpt)
         return model
-    model = new_model(cfg, {"control_hz": dm.control_hz})
+    data_spec = {"control_hz": dm.control_hz}
+    if dm.stiffness_frame != "world":  # a world-frame model's checkpoint stays as it was before the frame
+        data_spec["stiffness_frame"] = dm.stiffness_frame
+    model = new_model(cfg, data_spec)
     model.fit_normalizers(*dm.train_arrays())
     return model
 

@@ -246,4 +246,5 @@ def check_predictor(model: Any, cfg: Any) -> None:
     spec = getattr(model, "data_spec", None)
     if spec is not None:
         spec.check(cond_channel_names(), target_channel_names(), cfg.control_hz,
-                   source=f"tune.control_hz and the tuner's model inputs for ckpt={cfg.ckpt}")
+                   source=f"the tuner's model inputs (tune.control_hz, stiffness.frame) for ckpt={cfg.ckpt}",
+                   stiffness_frame=cfg.stiffness.get("frame", "world"))

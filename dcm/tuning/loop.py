@@ -62,7 +62,7 @@ def write_round_folder(run: LoopRun, entry: Round) -> Path:
     folder = round_dir(run.out_dir, entry.index)
     proposals = entry.proposals
     schedules = run.skill.schedules(proposals)
-    attractors = run.simulator.attractor(run.demo, schedules)
+    attractors = run.simulator.attractor(run.demo, schedules, run.skill.axes)
     mass = damping_mass(str(run.settings.stiffness['damping']), run.simulator.apparent_mass)
     info = {
         "control_hz": float(run.settings.control_hz), "demo": run.demo.spec.to_dict(), "embodiment": str(run.settings.embodiment),
@@ -77,7 +77,7 @@ def write_round_folder(run: LoopRun, entry: Round) -> Path:
     tmp = folder.with_name(folder.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     write_round(tmp, entry.index, proposals, schedules, attractors, mass, run.demo, info, entry.predicted,
-                bowl_in_base)
+                bowl_in_base, run.skill.axes)
     if folder.exists():
         shutil.rmtree(folder)
     tmp.rename(folder)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import compliance_loss, schedule_from_phases
+from dcm.control import StiffnessSchedule, compliance_loss, frame_diagonal, schedule_from_phases
 from dcm.control.objectives import PAPER, TaskObjective
 
 
@@ -30,6 +30,12 @@ class Skill:
     rot_Nmprad: float
     task_from_step: int = 0  # L_task counts the force from this step on (tune.task_from_s)
     objective: TaskObjective = PAPER  # what a trial of this skill costs (conf/objective/)
+    frame: str = "world"  # the frame the proposals' stiffness acts in (stiffness.frame)
+
+    def __post_init__(self) -> None:
+        schedule = StiffnessSchedule.for_demo(np.zeros_like(self.x_demo), self.frame, self.x_demo, self.force_demo,
+                                              "this skill's demo")
+        self.axes: np.ndarray | None = schedule.axes  # (H, 3, 3) the frame's axes along the demo; None: bowl axes
 
     def trial_task_loss(self, trial: Any) -> float:
         """A simulated trial's L_task over the scored window (inf where it failed)."""
@@ -40,8 +46,13 @@ class Skill:
         return float(self.objective.task_loss(force_obs, self.force_demo, x_obs, self.x_demo, self.task_from_step))
 
     def schedules(self, proposals: np.ndarray) -> np.ndarray:
-        """(B, P, 3) per-phase stiffness in N/m -> (B, H, 6) schedules."""
-        return np.stack([schedule_from_phases(p, self.boundaries, self.rot_Nmprad) for p in proposals])
+        """(B, P, axes) per-phase stiffness in N/m -> (B, H, 6) schedules: diagonals along the frame's axes."""
+        diagonal = frame_diagonal(proposals, self.frame)
+        return np.stack([schedule_from_phases(p, self.boundaries, self.rot_Nmprad) for p in diagonal])
+
+    def in_frame(self, stiffness: np.ndarray) -> StiffnessSchedule:
+        """One schedule's diagonal (H, 6) as the schedule a controller runs, in this skill's frame."""
+        return StiffnessSchedule(stiffness, self.axes)
 
 
 # Rows (proposals × diffusion samples) per predictor call on a CPU; see ModelObjective.calls.
@@ -112,7 +123,7 @@ class ModelObjective:
         return [slice(i, min(i + step, batch)) for i in range(0, batch, step)]
 
     def inputs(self, proposals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Raw predictor inputs (x_demo, F_demo, x_attr, K), each (B, H, 6), for (B, P, 3) proposals."""
+        """Raw predictor inputs (x_demo, F_demo, x_attr, K), each (B, H, 6), for (B, P, axes) proposals."""
         stiffness = self.skill.schedules(proposals)
         x_attr = np.asarray(self.attractor(stiffness))  # the whole batch at once
         batch = len(proposals)
@@ -190,7 +201,7 @@ class SimulatorObjective:
         scores = []
         repeats = [0] if self.rollouts == 1 else range(1, self.rollouts + 1)
         for stiffness in self.skill.schedules(proposals):
-            trials = [self.simulator.rollout(self.demo, stiffness, repeat=r) for r in repeats]
+            trials = [self.simulator.rollout(self.demo, self.skill.in_frame(stiffness), repeat=r) for r in repeats]
             self.trials.extend(trials)
             failed = any(t.failed for t in trials)
             scores.append([np.nan, np.nan] if failed else

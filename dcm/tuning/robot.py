@@ -35,7 +35,7 @@ class SimulatorRobot:
     skill: Any
 
     def trials(self, proposals: np.ndarray) -> list[Any]:
-        return [self.simulator.rollout(self.demo, k) for k in self.skill.schedules(proposals)]
+        return [self.simulator.rollout(self.demo, self.skill.in_frame(k)) for k in self.skill.schedules(proposals)]
 
     def run(self, folder: Path, proposals: np.ndarray, round_index: int) -> Path:
         from dcm.data.schema import write_dataset

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import phase_boundaries
+from dcm.control import StiffnessFrameError, phase_boundaries
 from dcm.control.objectives import TaskObjective, task_window_start
 from dcm.tuning.checks import CheckedConfig, TuneConfigError, check_config
 from dcm.tuning.diagnostics import ConditioningRangeWarning, conditioning_check, conditioning_warnings
@@ -68,6 +68,8 @@ def fingerprints(cfg: TuneSettings, spec: Any, domain: Any, model: Any, device: 
         skill["task_from_s"] = float(cfg.task_from_s)
     if cfg.objective and cfg.objective.get("name", "paper") != "paper":  # likewise the paper's objective
         skill["objective"] = TaskObjective.from_config(cfg.objective).to_dict()
+    if stiffness.get("frame", "world") != "world":  # and the world frame
+        skill["stiffness"]["frame"] = stiffness["frame"]
     robot = {**skill, "search": {"name": cfg.search.name, "options": dict(cfg.search.options or {})}}
     sampling = {k: v for k, v in describe(model, cfg.robot_free.n_samples).items() if k != "ckpt"}
     if cfg.prior:  # only when set: the trial logs of runs without a prior keep their fingerprint
@@ -109,8 +111,12 @@ def record_skill(cfg: Any, checked: CheckedConfig, seed: int | None = None) -> t
     demo = simulator.record_demo(checked.spec)
     boundaries = phase_boundaries(cfg.stiffness["phases"], cfg.stiffness["n_phases"], demo.force_demo)
     start = task_window_start(cfg.task_from_s, cfg.control_hz, demo.horizon)  # checked by check_config
-    return simulator, demo, Skill(demo.x_demo, demo.force_demo, boundaries, cfg.stiffness["rot_Nmprad"], start,
-                                  checked.objective)
+    try:
+        skill = Skill(demo.x_demo, demo.force_demo, boundaries, cfg.stiffness["rot_Nmprad"], start, checked.objective,
+                      checked.space.frame)
+    except StiffnessFrameError as err:
+        raise TuneConfigError(str(err)) from None
+    return simulator, demo, skill
 
 
 def skill_reference_point(cfg: TuneSettings, checked: CheckedConfig, recorded: tuple[Any, Any, Skill]) -> dict[str, Any]:
@@ -215,7 +221,8 @@ def prepare(cfg: Any, out_dir: Path) -> TuneSetup:
         resumable_log(out_dir / ROBOT_LOG, prints["robot_based"], settings.overwrite)
     simulator, demo, skill = record_skill(settings, checked)
     reference_info = skill_reference_point(settings, checked, (simulator, demo, skill))
-    objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), settings.robot_free.n_samples,
+    objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k, skill.axes),
+                               settings.robot_free.n_samples,
                                seed=settings.seed)
     conditioning = check_conditioning(model, objective, checked.space)
     return TuneSetup(settings, out_dir, checked, device, model, prints, notes, simulator, demo, skill, reference_info,
