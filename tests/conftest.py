@@ -41,7 +41,7 @@ def train_tiny(cls: type, dataset_path: Path, out_path: Path, steps: int, **conf
     dm.setup("fit")
     L.seed_everything(0)
     model = cls(net={"name": "retnet", "d_model": 16, "n_layers": 1, "n_heads": 2},
-                data_spec={"control_hz": dm.control_hz}, **config)
+                data_spec=dm.data_spec, **config)
     model.fit_normalizers(*dm.train_arrays())
     trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=steps, logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from dcm.control import (
     StiffnessFrameError,
@@ -182,3 +183,29 @@ def test_the_tuner_refuses_a_model_of_another_frame(tiny_checkpoint: Path):
     with pytest.raises(ValueError, match=r"stiffness in the surface frame, but the model was trained on stiffness in "
                                          r"the world frame \(stiffness.frame=world\)$"):
         check_predictor(load_model(tiny_checkpoint), settings)
+
+
+def test_a_model_of_surface_data_tunes_in_the_surface_frame_with_the_robot_in_the_loop(tmp_path: Path):
+    """Generation, training and the robot loop in the surface frame: the proposals are (K_t, K_n) per phase, the
+    round's files carry the frame, and the simulated robot's trials come back as the search's values."""
+    from hydra import compose, initialize_config_dir
+
+    from dcm.data.generate import ensure_dataset
+    from dcm.models.dcm import DCM
+    from dcm.tuning.run import tune
+    from tests.conftest import short_wave_demo, train_tiny
+
+    data = ensure_dataset("tiny", tmp_path / "surface.h5", ["workers=1", "progress=false", "stiffness.frame=surface"])
+    ckpt = train_tiny(DCM, data, tmp_path / "dcm.ckpt", 5, diffusion_steps=5)
+    with initialize_config_dir(config_dir=str(Path(__file__).parents[1] / "conf")):
+        cfg = compose("tune", overrides=[
+            f"ckpt={ckpt}", f"demo_file={short_wave_demo(tmp_path)}", "embodiment=tool", f"out_dir={tmp_path / 'run'}",
+            "stiffness.frame=surface", "robot_free.n_trials=16", "robot_free.batch_size=8",
+            "robot_free.sampling_steps=5", "search.options.n_startup_trials=4", "robot_based.n_trials=0",
+            "robot=sim", "loop.rounds=2", "loop.batch=3", "loop.n_trials=8", "loop.tolerance_N=0"])
+    loop = tune(cfg, tmp_path / "run")["loop"]
+    assert [r["n_trials"] for r in loop["rounds"]] == [3, 3] and loop["observed"]["n_trials"] == 6
+    state = json.loads((tmp_path / "run" / "loop" / "state.json").read_text())
+    assert all(np.asarray(r["proposals"]).shape[1:] == (3, 2) for r in state["rounds"])  # (K_t, K_n) per phase
+    round_1 = yaml.safe_load((tmp_path / "run" / "proposals" / "round_1" / "round.yaml").read_text())
+    assert round_1["stiffness_frame"] == "surface"

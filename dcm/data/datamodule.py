@@ -257,6 +257,15 @@ class DCMDataModule(L.LightningDataModule):
             self.split("train")
         return str(self.attrs.get("stiffness_frame", "world"))
 
+    @property
+    def data_spec(self) -> dict[str, Any]:
+        """What a model trained on this file records of it (``dcm.models.configuration.DataSpec``); the frame only
+        where it is not the world's, so a world-frame model's checkpoint stays as it was before the frame."""
+        spec: dict[str, Any] = {"control_hz": self.control_hz}
+        if self.stiffness_frame != "world":
+            spec["stiffness_frame"] = self.stiffness_frame
+        return spec
+
     def train_arrays(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The used training trajectories' raw conditions (N,H,24) and targets (N,H,C): what a model fits
         its normalisers on."""

@@ -189,10 +189,7 @@ def build_model(cfg: DictConfig, dm: DCMDataModule) -> ForceModel:
             model.net.load_state_dict(model.ema_net.state_dict())  # continue from the averaged weights
         log.info("initialised from %s (normaliser kept from pre-training)", ckpt)
         return model
-    data_spec = {"control_hz": dm.control_hz}
-    if dm.stiffness_frame != "world":  # a world-frame model's checkpoint stays as it was before the frame
-        data_spec["stiffness_frame"] = dm.stiffness_frame
-    model = new_model(cfg, data_spec)
+    model = new_model(cfg, dm.data_spec)
     model.fit_normalizers(*dm.train_arrays())
     return model
 

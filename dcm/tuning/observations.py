@@ -38,7 +38,7 @@ class Observations:
     path: Path
     sha256: str
     names: list[str]  # trajectory names in the file
-    phase_stiffness: np.ndarray  # (N, P, 3) N/m, recovered from K
+    phase_stiffness: np.ndarray  # (N, P, axes) N/m, recovered from K: the search space's values
     objectives: np.ndarray  # (N, 2) observed (L_task N, L_comp kN/m); NaN L_task for a failed trial
 
 
@@ -121,7 +121,10 @@ def load_observations(path: str | Path, run: dict[str, Any], skill: Any, space: 
             raise ObservationMismatch(f"{trajectory}: per-phase stiffness {np.round(k, 1).tolist()} N/m leaves the "
                                       f"search space [{space.min_Npm:g}, {space.max_Npm:g}] N/m (stiffness.min_Npm, "
                                       "stiffness.max_Npm)")
-        k = np.clip(k, space.min_Npm, space.max_Npm)
+        try:
+            k = space.from_diagonal(np.clip(k, space.min_Npm, space.max_Npm))
+        except ValueError as err:
+            raise ObservationMismatch(f"{trajectory}: {err} (stiffness.frame={space.frame})") from None
         failed = bool(meta.get("failed", False))
         force, pose = (np.asarray(data.arrays[key][i], np.float64) for key in ("F_obs", "x_obs"))
         observed_task = np.nan if failed else skill.task_loss(force, pose)
