@@ -129,7 +129,7 @@ def _tiny_with_objective(setting: dict):
     return cfg
 
 
-def test_tune_refuses_a_bad_objective_and_a_predictor_of_another() -> None:
+def test_tune_refuses_a_bad_objective() -> None:
     from hydra import compose, initialize_config_dir
 
     from dcm.configs import CONF_DIR
@@ -141,19 +141,17 @@ def test_tune_refuses_a_bad_objective_and_a_predictor_of_another() -> None:
         check_config(bad)
     assert check_config(wipe).objective == WIPE
 
-    class ForceOnly:  # a force model trained for the paper's objective, as every earlier checkpoint is
-        objective = None
-        predicts_pose = False
 
-    with pytest.raises(TuneConfigError, match=r"^ckpt=m.ckpt was trained for objective paper \(force RMSE, N\), "
-                                              r"not wipe \(force over 1 N, path over 5 mm\): tune it with"):
-        check_objective(ForceOnly(), WIPE, "m.ckpt")
-    ForceOnly.objective = WIPE
-    with pytest.raises(TuneConfigError, match=r"^ckpt=m.ckpt predicts only the force, and objective wipe"):
-        check_objective(ForceOnly(), WIPE, "m.ckpt")
-    ForceOnly.predicts_pose = True
-    check_objective(ForceOnly(), WIPE, "m.ckpt")
-    check_objective(type("Old", (), {})(), PAPER, "old.ckpt")  # a predictor that predates objectives: the paper's
+
+def test_tune_refuses_a_predictor_of_another_objective(tiny_checkpoint: Path) -> None:
+    from dcm.models.predict import load_model
+
+    model = load_model(tiny_checkpoint)  # a force model trained for the paper's objective
+    with pytest.raises(TuneConfigError, match=r"^ckpt=m.ckpt: objective wipe \(force over 1 N, path over 5 mm\) differs "
+                                              r"from paper \(force RMSE, N\) of checkpoint .*; use objective=paper, or a "
+                                              r"predictor trained for objective=wipe$"):
+        check_objective(model, WIPE, "m.ckpt")
+    check_objective(model, PAPER, "m.ckpt")
 
 
 def test_a_wipe_dataset_stores_its_objective_and_its_l_task(tmp_path: Path) -> None:

@@ -217,15 +217,14 @@ def check_config(cfg: Any) -> CheckedConfig:
 
 def check_objective(model: Any, objective: TaskObjective, ckpt: Any) -> None:
     """Refuse a predictor trained (or fitted) for another objective than the run's, or one that cannot predict
-    what the objective counts: its ranking was selected for another L_task, and a force-only model has no path."""
-    trained = getattr(model, "objective", None) or TaskObjective()
-    if trained.name != objective.name:
-        raise TuneConfigError(f"ckpt={ckpt} was trained for objective {trained.describe()}, not {objective.describe()}: "
-                              f"tune it with objective={trained.name}, or use a predictor trained for "
-                              f"objective={objective.name}")
-    if objective.counts_path and not getattr(model, "predicts_pose", False):
-        raise TuneConfigError(f"ckpt={ckpt} predicts only the force, and objective {objective.describe()} counts "
-                              "the path: use a model trained with model.target_fields=force_and_pose")
+    what the objective counts (:func:`dcm.models.predict.resolve_objective`, the check every scorer makes)."""
+    from dcm.models.configuration import ModelInputError
+    from dcm.models.predict import resolve_objective
+
+    try:
+        resolve_objective(model, objective)
+    except ModelInputError as err:
+        raise TuneConfigError(f"ckpt={ckpt}: {err}") from None
 
 
 def check_predictor(model: Any, cfg: Any) -> None:
