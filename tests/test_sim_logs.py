@@ -78,6 +78,10 @@ def test_bad_rounds_and_outputs_are_refused_in_one_line(tmp_path: Path, capsys: 
     assert main(["--trials", "1", "--duration-s", "2", "--out", str(out)]) == 1
     assert "exists and is not empty" in capsys.readouterr().err
     assert (out / "keep.txt").read_text() == "earlier logs" and len(list(out.iterdir())) == 1
+    surface = yaml.safe_load((round_dir / "round.yaml").read_text())
+    (round_dir / "round.yaml").write_text(yaml.safe_dump({**surface, "stiffness_frame": "surface"}))
+    assert main(["--schedules", str(round_dir), "--out", str(tmp_path / "surface")]) == 1
+    assert "stiffness_frame 'surface'; the simulated logs record a diagonal K" in capsys.readouterr().err
 
 
 def test_same_seed_same_bytes(tmp_path: Path) -> None:

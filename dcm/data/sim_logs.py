@@ -120,6 +120,9 @@ def read_proposals(round_dir: Path) -> tuple[dict[str, Any], list[tuple[str, np.
             raise SimLogsError(f"{round_path}: missing key {key!r}")
     if spec.get("frame", "bowl") != "bowl":
         raise SimLogsError(f"{round_path}: frame {spec['frame']!r}; the schedules must be in the bowl frame")
+    if spec.get("stiffness_frame", "world") != "world":  # a Franka log records a diagonal K, as the importer reads it
+        raise SimLogsError(f"{round_path}: stiffness_frame {spec['stiffness_frame']!r}; the simulated logs record a "
+                           "diagonal K on bowl axes, so only a stiffness.frame=world round can be played")
     if not isinstance(spec["proposals"], list) or not spec["proposals"]:
         raise SimLogsError(f"{round_path}: proposals must be a non-empty list")
     proposals = []
