@@ -90,6 +90,28 @@ def config_groups(*groups: str) -> str:
                      for group in sorted(groups))
 
 
+def group_choice_problem(argv: Iterable[str]) -> str | None:
+    """What is wrong with the first ``group=option`` of a command line that names no file of its group (a folder
+    of :data:`CONF_DIR`, or of a ``--config-dir``), in one line; None when every one exists. Hydra's own message
+    for it spans a dozen lines and lists its search path."""
+    argv = list(argv)
+    dirs = [CONF_DIR]
+    for i, arg in enumerate(argv):
+        if arg == "--config-dir" and i + 1 < len(argv):
+            dirs.append(Path(argv[i + 1]))
+        elif arg.startswith("--config-dir="):
+            dirs.append(Path(arg.split("=", 1)[1]))
+    for arg in argv:
+        group, sep, option = arg.partition("=")
+        if not sep or not option or "," in option or group.startswith(("-", "+", "~")) or "/" in group or "." in group:
+            continue  # not a group choice, or a sweep, an addition or a deletion: Hydra's own business
+        folders = [d / group for d in dirs if (d / group).is_dir()]
+        options = sorted({p.stem for folder in folders for p in folder.glob("*.yaml")})
+        if options and option not in options:
+            return f"{group}={option}: the {group} group has no option {option!r}; expected one of {', '.join(options)}"
+    return None
+
+
 def run_dir_of(resume: str | None, fresh_dir: str) -> str:
     """Where an invocation writes its own config and log: ``fresh_dir``, or, when it resumes the existing run
     directory ``resume``, ``<resume>/resumed/<fresh_dir's name>``, so that resuming a run adds no directory

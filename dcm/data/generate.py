@@ -36,7 +36,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from dcm.configs import CONF_DIR, register_resolvers
+from dcm.configs import CONF_DIR, group_choice_problem, register_resolvers
 from dcm.console import print_error, quiet_libraries
 from dcm.control.objectives import TaskObjective
 from dcm.data.generate_checks import (
@@ -197,6 +197,9 @@ def main() -> None:
             print_error(err)
             sys.exit(2)
 
+    if problem := group_choice_problem(sys.argv[1:]):
+        print_error(problem)
+        sys.exit(2)
     register_resolvers()
     run()
 

@@ -19,7 +19,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from dcm.configs import CONF_DIR, register_resolvers
+from dcm.configs import CONF_DIR, group_choice_problem, register_resolvers
 from dcm.console import error_line, print_error, quiet_libraries, to_run_log
 from dcm.devices import DeviceError, check_accelerator
 from dcm.training.checks import (
@@ -123,6 +123,8 @@ def main() -> None:
     creates an output folder, so a wrong one leaves nothing behind."""
     quiet_notices()
     try:
+        if problem := group_choice_problem(sys.argv[1:]):
+            raise TrainConfigError(problem)
         check_data_argument(sys.argv[1:])
         check_resume_argument(sys.argv[1:])
     except TrainConfigError as err:

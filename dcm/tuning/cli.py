@@ -8,12 +8,13 @@ pareto.png and solution_forces.png to the run directory; a killed run resumes wi
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
 
-from dcm.configs import CONF_DIR, discard_resumed_dir, register_resolvers
+from dcm.configs import CONF_DIR, discard_resumed_dir, group_choice_problem, register_resolvers
 from dcm.console import error_line, one_line_warnings, quiet_libraries, to_run_log
 from dcm.control.objectives import TaskObjective
 from dcm.shipped import with_shipped_paths
@@ -112,6 +113,8 @@ def _replayed(search: dict) -> str:
 def main() -> None:
     """Entry point of tune.py and ``dcm-tune``; the run directory's ``${dcm.run_dir_of:...}`` is resolved by Hydra
     before :func:`hydra_main` runs."""
+    if problem := group_choice_problem(sys.argv[1:]):
+        raise SystemExit(error_line(problem))
     register_resolvers()
     hydra_main()
 
