@@ -169,11 +169,12 @@ def test_numerical_blowup_is_detected(demo: Demo, fault: str) -> None:
     original = emb.step
     calls = {"n": 0}
 
-    def faulty_step(attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None):
+    def faulty_step(attractor: np.ndarray, stiffness: np.ndarray, damping: np.ndarray | None = None,
+                    axes: np.ndarray | None = None):
         calls["n"] += 1
         if calls["n"] == 51 and fault == "mujoco-blowup":
             emb.data.qvel[0] = 1e40
-        result = original(attractor, stiffness, damping)
+        result = original(attractor, stiffness, damping, axes)
         if calls["n"] == 51 and fault == "nan-force":
             result.force_contact[:] = np.nan
         return result

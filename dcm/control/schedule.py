@@ -128,6 +128,29 @@ def frame_diagonal(phase_values: np.ndarray, frame: str) -> np.ndarray:
     return values[..., [0, 0, 1]]
 
 
+def frame_values(diagonal: np.ndarray, frame: str) -> np.ndarray:
+    """The inverse of :func:`frame_diagonal`: (..., P, 3) -> the search's values. A surface diagonal whose two
+    tangents differ is none of that frame's schedules: ValueError."""
+    diagonal = np.asarray(diagonal, dtype=np.float64)
+    if check_frame(frame) == "world":
+        return diagonal
+    if not np.allclose(diagonal[..., 0], diagonal[..., 1], rtol=1e-6):
+        raise ValueError("its two tangential stiffnesses differ, and the surface frame has one")
+    return diagonal[..., [0, 2]]
+
+
+def in_axes(axes: np.ndarray, diagonal: np.ndarray) -> np.ndarray:
+    """``R diag(k) Rᵀ`` (..., 3, 3) of axes R (..., 3, 3) (columns) and translational diagonals k (..., 3)."""
+    return np.einsum("...ij,...j,...kj->...ik", axes, diagonal, axes)
+
+
+def eigen_axes(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(eigenvalues (..., 3), axes (..., 3, 3)) of symmetric matrices, the axes a rotation (det +1)."""
+    values, vectors = np.linalg.eigh(matrix)
+    vectors[..., 2] *= np.sign(np.linalg.det(vectors))[..., None]
+    return values, vectors
+
+
 @dataclass(frozen=True)
 class StiffnessSchedule:
     """A stiffness schedule: its diagonal (H, 6) in the axes of its frame, and those axes.
@@ -175,39 +198,20 @@ class StiffnessSchedule:
         if matrix.ndim != 3 or matrix.shape[1:] != (3, 3) or rotational.shape != (matrix.shape[0], 3):
             raise ValueError(f"{where}: need translational (H, 3, 3) and rotational (H, 3), got {matrix.shape} "
                              f"and {rotational.shape}")
-        asymmetry = np.abs(matrix - np.swapaxes(matrix, -1, -2)).max(axis=(-1, -2))
-        scale = np.abs(matrix).max(axis=(-1, -2))
-        if not np.all(np.isfinite(matrix)) or np.any(asymmetry > 1e-6 * np.maximum(scale, 1.0)):
-            t = int(np.argmax(~np.isfinite(matrix).all(axis=(-1, -2)) | (asymmetry > 1e-6 * np.maximum(scale, 1.0))))
-            raise StiffnessOutOfRange(f"{where}[t={t}]: the translational stiffness matrix is not symmetric")
-        values, vectors = np.linalg.eigh(0.5 * (matrix + np.swapaxes(matrix, -1, -2)))
-        vectors[..., 2] *= np.sign(np.linalg.det(vectors))[..., None]  # a rotation, not a reflection
-        schedule = cls(np.concatenate([values, rotational], axis=-1), vectors)
+        transposed = np.swapaxes(matrix, -1, -2)
+        asymmetric = ~np.isclose(matrix, transposed, rtol=1e-6, atol=1e-6).all(axis=(-1, -2))
+        if asymmetric.any():
+            raise StiffnessOutOfRange(f"{where}[t={int(np.argmax(asymmetric))}]: the translational stiffness matrix "
+                                      "is not symmetric")
+        values, axes = eigen_axes(0.5 * (matrix + transposed))
+        schedule = cls(np.concatenate([values, rotational], axis=-1), axes)
         (limits or StiffnessLimits()).check(schedule.diagonal, where=f"{where} eigenvalues")
         return schedule
-
-    @property
-    def horizon(self) -> int:
-        return self.diagonal.shape[0]
-
-    @property
-    def frame(self) -> str:
-        return "world" if self.axes is None else "surface"
 
     def translational_matrix(self) -> np.ndarray:
         """(H, 3, 3) ``R diag(k) Rᵀ`` in bowl-frame coordinates [N/m]."""
         k = self.diagonal[:, :3]
-        if self.axes is None:
-            return k[:, :, None] * np.eye(3)
-        return np.einsum("hij,hj,hkj->hik", self.axes, k, self.axes)
-
-    def axis_mass(self, mass: np.ndarray) -> np.ndarray:
-        """The damping's mass along this schedule's axes (:func:`axis_mass`)."""
-        return axis_mass(mass, self.axes)
-
-    def filtered(self, dt: float, tau_s: float = 0.2, max_rate: float | None = None) -> StiffnessSchedule:
-        """The schedule the controller applies (:func:`filter_in_frame`)."""
-        return StiffnessSchedule(*filter_in_frame(self.diagonal, self.axes, dt, tau_s, max_rate))
+        return k[:, :, None] * np.eye(3) if self.axes is None else in_axes(self.axes, k)
 
 
 def axis_mass(mass: np.ndarray, axes: np.ndarray | None) -> np.ndarray:
@@ -234,9 +238,8 @@ def filter_in_frame(diagonal: np.ndarray, axes: np.ndarray | None, dt: float, ta
     diagonal = np.asarray(diagonal, dtype=np.float64)
     if axes is None:
         return filter_schedule(diagonal, dt, tau_s=tau_s, max_rate=max_rate), None
-    matrix = np.einsum("...hij,...hj,...hkj->...hik", axes, diagonal[..., :3], axes)
+    matrix = in_axes(axes, diagonal[..., :3])
     flat = np.concatenate([matrix.reshape(*matrix.shape[:-2], 9), diagonal[..., 3:]], axis=-1)
     applied = filter_schedule(flat, dt, tau_s=tau_s, max_rate=max_rate)
-    values, vectors = np.linalg.eigh(applied[..., :9].reshape(matrix.shape))
-    vectors[..., 2] *= np.sign(np.linalg.det(vectors))[..., None]  # a rotation, not a reflection
-    return np.concatenate([values, applied[..., 9:]], axis=-1), vectors
+    values, applied_axes = eigen_axes(applied[..., :9].reshape(matrix.shape))
+    return np.concatenate([values, applied[..., 9:]], axis=-1), applied_axes

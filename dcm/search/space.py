@@ -61,12 +61,9 @@ class SearchSpace:
     def from_diagonal(self, diagonal: np.ndarray) -> np.ndarray:
         """(..., P, 3) diagonal along the frame's axes -> (..., P, axes) searched values (surface: t1 and n;
         a diagonal whose two tangents differ is none of this space's and raises ValueError)."""
-        diagonal = np.asarray(diagonal, dtype=np.float64)
-        if self.frame == "world":
-            return diagonal
-        if not np.allclose(diagonal[..., 0], diagonal[..., 1], rtol=1e-6):
-            raise ValueError("its two tangential stiffnesses differ, and the surface frame searches one")
-        return diagonal[..., [0, 2]]
+        from dcm.control.schedule import frame_values
+
+        return frame_values(diagonal, self.frame)
 
     def to_unit(self, stiffness: np.ndarray) -> np.ndarray:
         """(..., P, axes) N/m -> (..., P·axes) in [0, 1] (in log space when ``log``), for model-based strategies."""

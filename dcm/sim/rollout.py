@@ -428,13 +428,11 @@ class Simulator:
         damping = damping_from_stiffness(stiffness, axis_mass(self.damping_mass, axes))
         for k in range(horizon):
             j = k - latency
-            if axes is not None:
-                result = emb.step(attractor[j], stiffness[j], damping[j], axes[j]) if j >= 0 else \
-                    emb.step(start_pose, stiffness[0], damping[0], axes[0])
-            elif j >= 0:
-                result = emb.step(attractor[j], stiffness[j], damping[j])
+            frame = None if axes is None else axes[max(j, 0)]
+            if j >= 0:
+                result = emb.step(attractor[j], stiffness[j], damping[j], frame)
             else:  # the first command has not arrived yet: keep holding the start pose
-                result = emb.step(start_pose, stiffness[0], damping[0])
+                result = emb.step(start_pose, stiffness[0], damping[0], frame)
             x_obs[k], v_obs[k] = result.pose, result.velocity
             f_contact[k], f_sensor[k] = result.force_contact, result.force_sensor
             contact[k] = result.in_contact

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import StiffnessSchedule, compliance_loss, frame_diagonal, schedule_from_phases
+from dcm.control import StiffnessSchedule, check_frame, compliance_loss, frame_diagonal, schedule_from_phases, surface_axes
 from dcm.control.objectives import PAPER, TaskObjective
 
 
@@ -32,10 +32,9 @@ class Skill:
     objective: TaskObjective = PAPER  # what a trial of this skill costs (conf/objective/)
     frame: str = "world"  # the frame the proposals' stiffness acts in (stiffness.frame)
 
-    def __post_init__(self) -> None:
-        schedule = StiffnessSchedule.for_demo(np.zeros_like(self.x_demo), self.frame, self.x_demo, self.force_demo,
-                                              "this skill's demo")
-        self.axes: np.ndarray | None = schedule.axes  # (H, 3, 3) the frame's axes along the demo; None: bowl axes
+    def __post_init__(self) -> None:  # the frame's axes (H, 3, 3) along the demo; None: bowl axes
+        self.axes: np.ndarray | None = None if check_frame(self.frame) == "world" else surface_axes(
+            self.x_demo, self.force_demo, "this skill's demo")
 
     def trial_task_loss(self, trial: Any) -> float:
         """A simulated trial's L_task over the scored window (inf where it failed)."""
