@@ -1,4 +1,4 @@
-"""The certification statistics T1-T4, as pure functions of an oracle's expected losses.
+"""The certification statistics T1-T5, as pure functions of an oracle's expected losses.
 
 Inputs per skill: ``task`` (S,) the expected L_task [N] of each schedule (mean over rollouts, inf if any
 failed), ``comp`` (S,) its L_comp [kN/m], ``constant`` (S,) True where the schedule holds one stiffness
@@ -98,3 +98,57 @@ def single_schedule_regret(tasks: np.ndarray, comp: np.ndarray) -> dict[str, obj
     own = np.where(within[None, :], tasks, np.inf).min(axis=1)
     regrets = tasks[:, single] / own - 1.0
     return {"single": single, "regrets": regrets.tolist(), "median": float(np.median(regrets))}
+
+
+def ridge_features_input(diagonal: np.ndarray) -> np.ndarray:
+    """The commanded schedules (S, P, 6) of per-phase diagonals (S, P, 3), one control step per phase: what
+    ``dcm.models.references.StiffnessRegression`` reads its per-phase values from (equal-time phases, so one step
+    per phase is exact), with the rotational 20 N·m/rad every schedule has."""
+    diagonal = np.asarray(diagonal, dtype=np.float64)
+    return np.concatenate([diagonal, np.full(diagonal.shape, 20.0)], axis=-1)
+
+
+def fit_stiffness_ridge(diagonals: Sequence[np.ndarray], tasks: Sequence[np.ndarray]) -> object:
+    """T5's ranker: the project's stiffness-only ridge (``StiffnessRegression``: log L_task on per-phase K, 1/K and
+    phase-to-phase changes, centred within each skill, ridge strength by grouped cross-validation) fitted on the
+    expected L_task of every schedule of each skill (schedules with an inf loss left out)."""
+    from dcm.models.references import StiffnessRegression
+
+    K, L, skills = [], [], []
+    for k, (diag, task) in enumerate(zip(diagonals, tasks)):
+        ok = np.isfinite(task) & (task > 0)
+        K.append(ridge_features_input(diag)[ok])
+        L.append(np.asarray(task)[ok])
+        skills.append(np.full(int(ok.sum()), k))
+    n_phases = int(np.asarray(diagonals[0]).shape[1])
+    return StiffnessRegression.fit(np.concatenate(K), np.concatenate(L), np.concatenate(skills), n_phases,
+                                   control_hz=20.0)
+
+
+def ridge_spearman(model: object, diagonal: np.ndarray, task: np.ndarray) -> float:
+    """The within-skill Spearman of the ridge's predicted L_task against one skill's expected L_task."""
+    from scipy.stats import spearmanr
+
+    ok = np.isfinite(task)
+    pred = model.predict_log_task_loss(ridge_features_input(diagonal)[ok])  # type: ignore[attr-defined]
+    return float(spearmanr(pred, np.asarray(task)[ok]).statistic)
+
+
+def ridge_ranking(train: Sequence[tuple[np.ndarray, np.ndarray]],
+                  evaluate: Sequence[tuple[np.ndarray, np.ndarray]] | None = None) -> dict[str, object]:
+    """T5: how well a stiffness-only ridge fitted on ``train`` skills ((S, P, 3) diagonals, (S,) expected L_task)
+    ranks the schedules of each ``evaluate`` skill (within-skill Spearman), and their median. With ``evaluate``
+    None it is leave-one-skill-out over ``train`` (the design-time proxy on the train skills). T5 holds when the
+    median is <= 0.7: the schedule's stiffness alone does not rank a new skill's schedules well."""
+    if evaluate is None:
+        rhos = []
+        for k in range(len(train)):
+            rest = [t for j, t in enumerate(train) if j != k]
+            model = fit_stiffness_ridge([d for d, _ in rest], [t for _, t in rest])
+            rhos.append(ridge_spearman(model, *train[k]))
+        mode = "leave-one-skill-out"
+    else:
+        model = fit_stiffness_ridge([d for d, _ in train], [t for _, t in train])
+        rhos = [ridge_spearman(model, d, t) for d, t in evaluate]
+        mode = "fitted on the train skills"
+    return {"spearman": rhos, "median": float(np.median(rhos)), "mode": mode}
