@@ -13,7 +13,9 @@ demo recorded as its training demos were) and at one torch thread count, it time
   robot_free.n_samples=16 robot_free.task_loss=over_samples robot_free.shared_steps=0"`` times them unshared);
 * every ``--row`` given (its overrides on top of the rest, e.g. the multi-step DCM as the tuner ran it before:
   ``--row "ddim-5 float32 unbatched: ckpt=models/dcm_diverse_contact.ckpt robot_free.sampling_steps=5
-  robot_free.precision=float32 robot_free.batched_search=false"``);
+  robot_free.precision=float32 robot_free.batched_search=false"``); a row's ``objective=`` scores its virtual trials
+  with that L_task (e.g. ``--row "wipe: ckpt=<a force_and_pose student> objective=wipe"``), the simulator's with
+  the quickstart's;
 * ``--sim-trials`` simulator rollouts of the same skill (seeded random schedules from the same box), whose
   mean time per trial is extrapolated to ``--trials``;
 
@@ -57,6 +59,9 @@ def parse_row(text: str) -> tuple[str, list[str]]:
 
 def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space: Any) -> dict[str, float]:
     """One robot-free search of ``cfg.robot_free.n_trials`` virtual trials, as ``tune`` runs it, timed."""
+    from dataclasses import replace
+
+    from dcm.control.objectives import TaskObjective
     from dcm.devices import resolve_device
     from dcm.models.predict import describe
     from dcm.search import make_search
@@ -68,7 +73,10 @@ def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the quickstart's recording warning, not a timing
         model = load_predictor(cfg, spec, resolve_device(cfg.device, "device"))
-    objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), cfg.robot_free.n_samples,
+    row_objective = TaskObjective.from_config(cfg.objective)
+    if row_objective != skill.objective:  # a row of its own objective (a wipe model: objective=wipe) costs its L_task
+        skill = replace(skill, objective=row_objective)
+    objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k, skill.axes), cfg.robot_free.n_samples,
                                seed=cfg.seed)
     search = make_search(cfg.search.name, space, cfg.seed, **free_search_options(cfg))
     times = LoopTimes()

@@ -221,6 +221,12 @@ def test_the_stiffness_ridge_learns_the_configured_objective(pose_data: Path, tm
         predict_task_loss(loaded, None, None, None, _inputs(pose_data)[3], objective=PAPER)
     assert "\n" not in str(err.value) and "wipe.json" in str(err.value)
 
+    from dcm.evaluate import evaluate
+
+    # evaluated alone, a wipe ridge is scored on the file's pose as well as its force (its true L_task counts the path)
+    scored = evaluate(tmp_path / "wipe.json", pose_data, split="valid", n_phases=2)
+    assert scored["objective"] == WIPE.to_dict() and np.isfinite(scored["R_within_spearman"])
+
 
 def test_a_student_draws_noise_of_its_teacher_s_target_width(pose_data: Path) -> None:
     from dcm.training.distill import DistillSettings, teacher_pairs
