@@ -209,3 +209,25 @@ def test_a_model_of_surface_data_tunes_in_the_surface_frame_with_the_robot_in_th
     assert all(np.asarray(r["proposals"]).shape[1:] == (3, 2) for r in state["rounds"])  # (K_t, K_n) per phase
     round_1 = yaml.safe_load((tmp_path / "run" / "proposals" / "round_1" / "round.yaml").read_text())
     assert round_1["stiffness_frame"] == "surface"
+
+
+def test_the_panda_s_frame_actuators_agree_with_the_python_law_r_diag_r_transposed():
+    """The in-engine actuators along the mocap frame against the reference controller, which evaluates
+    R (k ∘ Rᵀ e - d ∘ Rᵀ v) in Python at every physics step: as close as in the world frame, and far from the
+    law of a transposed frame (what a quaternion of Rᵀ would apply)."""
+    from dcm.control import task_loss
+    from dcm.sim.panda import PandaEmbodiment
+
+    bowl = BowlSpec()
+    sim, demo = _recorded(bowl, embodiment="panda")
+    diagonal = schedule_from_phases(np.array([[1500.0, 1500.0, 150.0], [300.0, 300.0, 1200.0]]),
+                                    equal_time_phases(demo.horizon, 2))
+    surface = StiffnessSchedule.for_demo(diagonal, "surface", demo.x_demo, demo.force_demo)
+    transposed = StiffnessSchedule(diagonal, np.swapaxes(surface.axes, 1, 2))
+    engine = [sim.rollout(demo, s).force_obs for s in (diagonal, surface, transposed)]
+    sim._embodiments[next(iter(sim._embodiments))] = PandaEmbodiment(bowl, DomainSpec(), visual=False,
+                                                                     controller="python")
+    reference = [sim.rollout(demo, s).force_obs for s in (diagonal, surface)]
+    world_gap, surface_gap = (float(task_loss(a, b)) for a, b in zip(engine, reference))
+    assert surface_gap < 1.5 * world_gap
+    assert float(task_loss(engine[2], reference[1])) > 2.0 * surface_gap
