@@ -103,7 +103,7 @@ def main() -> None:
         for kind, steps in grid:
             model = load_model(args.ckpt)
             use_sampler(model, kind, steps)
-            objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), args.n_samples,
+            objective = ModelObjective(model, skill, simulator, demo, args.n_samples,
                                        seed=args.seed)
             times = LoopTimes()
             cpu = time.process_time()

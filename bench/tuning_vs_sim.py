@@ -76,7 +76,7 @@ def time_model(cfg: Any, spec: Any, simulator: Any, demo: Any, skill: Any, space
     row_objective = TaskObjective.from_config(cfg.objective)
     if row_objective != skill.objective:  # a row of its own objective (a wipe model: objective=wipe) costs its L_task
         skill = replace(skill, objective=row_objective)
-    objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k, skill.axes), cfg.robot_free.n_samples,
+    objective = ModelObjective(model, skill, simulator, demo, cfg.robot_free.n_samples,
                                seed=cfg.seed)
     search = make_search(cfg.search.name, space, cfg.seed, **free_search_options(cfg))
     times = LoopTimes()

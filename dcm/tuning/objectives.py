@@ -93,10 +93,11 @@ class ModelObjective:
     and in the predictor.
     """
 
-    def __init__(self, model: Any, skill: Skill, attractor: Any, n_samples: int = 1, seed: int = 0):
+    def __init__(self, model: Any, skill: Skill, simulator: Any, demo: Any, n_samples: int = 1, seed: int = 0):
         self.model = model
         self.skill = skill
-        self.attractor = attractor  # (B, H, 6) stiffness -> (B, H, 6) attractors, as the simulator computes them
+        self.simulator = simulator  # computes a batch's attractors as its rollouts would (Simulator.attractor)
+        self.demo = demo
         self.n_samples = n_samples
         self.seed = int(seed)
         self.seconds_inputs = 0.0
@@ -124,7 +125,7 @@ class ModelObjective:
     def inputs(self, proposals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Raw predictor inputs (x_demo, F_demo, x_attr, K), each (B, H, 6), for (B, P, axes) proposals."""
         stiffness = self.skill.schedules(proposals)
-        x_attr = np.asarray(self.attractor(stiffness))  # the whole batch at once
+        x_attr = np.asarray(self.simulator.attractor(self.demo, stiffness, self.skill.axes))  # the whole batch
         batch = len(proposals)
         x_demo = np.repeat(self.skill.x_demo[None], batch, axis=0)
         force_demo = np.repeat(self.skill.force_demo[None], batch, axis=0)

@@ -221,9 +221,7 @@ def prepare(cfg: Any, out_dir: Path) -> TuneSetup:
         resumable_log(out_dir / ROBOT_LOG, prints["robot_based"], settings.overwrite)
     simulator, demo, skill = record_skill(settings, checked)
     reference_info = skill_reference_point(settings, checked, (simulator, demo, skill))
-    objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k, skill.axes),
-                               settings.robot_free.n_samples,
-                               seed=settings.seed)
+    objective = ModelObjective(model, skill, simulator, demo, settings.robot_free.n_samples, seed=settings.seed)
     conditioning = check_conditioning(model, objective, checked.space)
     return TuneSetup(settings, out_dir, checked, device, model, prints, notes, simulator, demo, skill, reference_info,
                      objective, conditioning)

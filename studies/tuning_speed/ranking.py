@@ -69,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             model = load_predictor(cfg, checked.spec, resolve_device(cfg.device, "device"))
-        objective = ModelObjective(model, skill, lambda k: simulator.attractor(demo, k), 1, seed=0)
+        objective = ModelObjective(model, skill, simulator, demo, 1, seed=0)
         batch = int(cfg.robot_free.batch_size)
         predicted[name] = np.concatenate([objective(params[i:i + batch], i)[:, 0]
                                           for i in range(0, len(params), batch)])

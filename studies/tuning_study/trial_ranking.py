@@ -144,8 +144,8 @@ def predict_trials(study: Path, predictors: Mapping[str, str], params: np.ndarra
         tune_cfg = tune_config(cfg, Tuner(kind, path, overrides), 0, None, study)  # nothing is written
         setup = setup or setup_skill(tune_cfg)
         model = load_predictor(tune_cfg, setup.spec, resolve_device(tune_cfg.device, "device"))
-        objective = ModelObjective(model, setup.skill, lambda k, setup=setup: setup.simulator.attractor(setup.demo, k),
-                                   tune_cfg.robot_free.n_samples, seed=0)
+        objective = ModelObjective(model, setup.skill, setup.simulator, setup.demo, tune_cfg.robot_free.n_samples,
+                                   seed=0)
         batch = int(tune_cfg.robot_free.batch_size)
         predicted[label] = np.concatenate([objective(params[i : i + batch], first_trial=i)[:, 0]
                                            for i in range(0, len(params), batch)])
