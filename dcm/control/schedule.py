@@ -109,6 +109,12 @@ def surface_axes(x_demo: np.ndarray, force_demo: np.ndarray, name: str = "the de
     return axes_from_normals(surface_normals(x_demo, force))
 
 
+def frame_axes(frame: str, x_demo: np.ndarray, force_demo: np.ndarray, name: str = "the demo") -> np.ndarray | None:
+    """The stiffness axes (H, 3, 3) of ``frame`` along a demo: None for the world frame (bowl axes), else
+    :func:`surface_axes`."""
+    return None if check_frame(frame) == "world" else surface_axes(x_demo, force_demo, name)
+
+
 def axes_from_normals(normal: np.ndarray) -> np.ndarray:
     """Stiffness axes (..., H, 3, 3), columns t1, t2, n, of unit normals (..., H, 3): t1 is bowl x projected
     into the tangent plane, t2 = n × t1."""
@@ -181,9 +187,7 @@ class StiffnessSchedule:
     def for_demo(cls, diagonal: np.ndarray, frame: str, x_demo: np.ndarray, force_demo: np.ndarray,
                  name: str = "the demo") -> StiffnessSchedule:
         """The schedule of ``diagonal`` (H, 6) in ``frame`` along a demo (``world`` keeps no axes)."""
-        if check_frame(frame) == "world":
-            return cls(diagonal)
-        return cls(diagonal, surface_axes(x_demo, force_demo, name))
+        return cls(diagonal, frame_axes(frame, x_demo, force_demo, name))
 
     @classmethod
     def from_matrix(cls, translational: np.ndarray, rotational: np.ndarray, limits: Any = None,

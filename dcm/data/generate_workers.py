@@ -114,7 +114,7 @@ class DemoRunner:
 
     def run(self, job: DemoJob, job_fingerprint: str, on_trial: Callable[[], None] = lambda: None) -> Path:
         """Record the demo, run its stiffness search, write its part file; returns the part path."""
-        from dcm.control.schedule import StiffnessSchedule, phase_boundaries, schedule_from_phases
+        from dcm.control.schedule import StiffnessSchedule, frame_axes, phase_boundaries, schedule_from_phases
         from dcm.sim.demos import DemoSpec
 
         stiffness_cfg = self.settings["stiffness"]
@@ -131,8 +131,7 @@ class DemoRunner:
         space = space_from_settings(stiffness_cfg, GenerationError)
         search = make_search(self.settings["search"]["name"], space, job.seed, **self.settings["search"]["options"])
         try:
-            frame = StiffnessSchedule.for_demo(np.zeros((horizon, 6)), space.frame, demo.x_demo, demo.force_demo,
-                                               f"demo {job.index} ({spec.name or spec.family})").axes
+            frame = frame_axes(space.frame, demo.x_demo, demo.force_demo, f"demo {job.index} ({spec.name or spec.family})")
         except ValueError as err:
             raise GenerationError(str(err)) from None
 

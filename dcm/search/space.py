@@ -33,8 +33,9 @@ class SearchSpace:
             raise ValueError(f"search space n_phases={self.n_phases} must be >= 1")
         if not 0 < self.min_Npm < self.max_Npm:
             raise ValueError(f"stiffness bounds must satisfy 0 < min_Npm < max_Npm, got {self.min_Npm}, {self.max_Npm}")
-        if self.frame not in FRAME_AXES:
-            raise ValueError(f"stiffness.frame = {self.frame!r} is unknown; expected one of {', '.join(FRAME_AXES)}")
+        from dcm.control import check_frame
+
+        check_frame(self.frame)
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -93,7 +94,7 @@ def space_from_settings(stiffness: Mapping[str, Any], error: type[Exception] = V
     Generation and tuning both call this before any work, so a value beyond the controller's limits fails at
     once, naming the setting and the limit (raised as ``error``)."""
     from dcm.configs import check_integer, check_number
-    from dcm.control import DAMPING_MODES, StiffnessLimits
+    from dcm.control import DAMPING_MODES, StiffnessLimits, check_frame
 
     limits = StiffnessLimits()
     n_phases = check_integer(stiffness["n_phases"], "stiffness.n_phases", 1, error)
@@ -114,8 +115,10 @@ def space_from_settings(stiffness: Mapping[str, Any], error: type[Exception] = V
     if not isinstance(stiffness["log"], bool):
         raise error(f"stiffness.log = {stiffness['log']!r} must be true or false")
     frame = stiffness.get("frame", "world")  # absent from the settings of datasets older than the frame
-    if frame not in FRAME_AXES:
-        raise error(f"stiffness.frame = {frame!r} is unknown; expected one of {', '.join(FRAME_AXES)}")
+    try:
+        check_frame(frame)
+    except ValueError as err:
+        raise error(str(err)) from None
     return SearchSpace(n_phases=n_phases, min_Npm=low, max_Npm=high, log=stiffness["log"], frame=frame)
 
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from dcm.control import StiffnessSchedule, check_frame, compliance_loss, frame_diagonal, schedule_from_phases, surface_axes
+from dcm.control import StiffnessSchedule, compliance_loss, frame_axes, frame_diagonal, schedule_from_phases
 from dcm.control.objectives import PAPER, TaskObjective
 
 
@@ -33,8 +33,7 @@ class Skill:
     frame: str = "world"  # the frame the proposals' stiffness acts in (stiffness.frame)
 
     def __post_init__(self) -> None:  # the frame's axes (H, 3, 3) along the demo; None: bowl axes
-        self.axes: np.ndarray | None = None if check_frame(self.frame) == "world" else surface_axes(
-            self.x_demo, self.force_demo, "this skill's demo")
+        self.axes: np.ndarray | None = frame_axes(self.frame, self.x_demo, self.force_demo, "this skill's demo")
 
     def trial_task_loss(self, trial: Any) -> float:
         """A simulated trial's L_task over the scored window (inf where it failed)."""

@@ -43,7 +43,7 @@ def run_skill(seed: int, out_dir: Path, rollouts: int = bench.ROLLOUTS, domain: 
     (``task.REVISIONS``) the skill is drawn from. ``schedules`` is (S, P) isotropic or (S, P, 3) per axis of
     ``frame`` (``world`` or ``surface``); ``kinds`` names what each one is (default "given").
     """
-    from dcm.control import StiffnessSchedule, surface_axes
+    from dcm.control import StiffnessSchedule, frame_axes
     from dcm.control.objectives import surface_normals, tangential
     from dcm.sim import DemoSpec, DomainSpec, Simulator
 
@@ -63,7 +63,7 @@ def run_skill(seed: int, out_dir: Path, rollouts: int = bench.ROLLOUTS, domain: 
     diagonal = bench.phase_diagonal(phase_Npm)
     if frame not in ("world", "surface"):
         raise ValueError(f"stiffness frame {frame!r} is unknown; expected world or surface")
-    axes = surface_axes(demo.x_demo, demo.force_demo, f"benchmark skill {seed}") if frame == "surface" else None
+    axes = frame_axes(frame, demo.x_demo, demo.force_demo, f"benchmark skill {seed}")
     normals = surface_normals(demo.x_demo, demo.force_demo)
     n_s = len(phase_Npm)
     approach_steps = int(round(spec.approach_s * bench.CONTROL_HZ))
